@@ -1,0 +1,21 @@
+"""paper_lib: uncertainty estimation for PPO (and A2C, TRPO) as drop-in SB3 policies.
+
+    from paper_lib import make_agent, uncertainty
+    model = make_agent("ppo", "masksembles", "HalfCheetah-v5", seed=0)
+    model.learn(1_000_000)
+    u = uncertainty(model.policy, observations)   # value_std, policy_std, policy_js, ...
+"""
+
+from paper_lib.agents import ALGORITHMS, ASSIGNMENTS, make_agent, paper_hyperparameters
+from paper_lib.envs import ATARI_ENVS, MUJOCO_ENVS, make_env
+from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
+from paper_lib.methods.groups import MemberGroupVecEnv
+from paper_lib.methods.networks import MEMBER_METHODS, METHODS
+from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
+from paper_lib.uncertainty import MemberOutputs, member_outputs, uncertainty
+
+__all__ = [
+    "ALGORITHMS", "ASSIGNMENTS", "ATARI_ENVS", "INFERENCE_MODES", "MEMBER_METHODS", "METHODS", "MUJOCO_ENVS",
+    "MemberActorCriticPolicy", "MemberGroupVecEnv", "MemberOrderedRolloutBuffer", "MemberOutputs", "make_agent",
+    "make_env", "member_outputs", "paper_hyperparameters", "uncertainty",
+]

@@ -1,0 +1,194 @@
+"""Member-batched layers: every tensor here is member-major, shape (k, n, ...).
+
+Keeping the k members on a leading axis lets all of them run as one batched computation
+(broadcast matmuls, batched matmuls, grouped convolutions) instead of a Python loop over k
+networks. Member j of a layer only ever sees slice j of the leading axis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch as th
+import torch.nn.functional as F
+from masksembles.common import generate_masks_
+from torch import nn
+
+#: How the weights of a layer relate across members.
+SHARED, ENSEMBLE, DROPCONNECT = "shared", "ensemble", "dropconnect"
+WEIGHT_MODES = (SHARED, ENSEMBLE, DROPCONNECT)
+
+
+def _orthogonal_(weight: th.Tensor, gain: float) -> None:
+    """SB3's default init (orthogonal, gain per layer role), applied to each member's matrix."""
+    if weight.dim() == 2:
+        nn.init.orthogonal_(weight, gain=gain)
+    else:  # (k, out, in...) -> each member initialized on its own
+        for member_weight in weight:
+            nn.init.orthogonal_(member_weight, gain=gain)
+
+
+def _dropconnect_mask(shape: tuple[int, ...], p: float, device: th.device) -> th.Tensor:
+    """Bernoulli keep-mask on weights, rescaled by 1/(1-p) like inverted dropout.
+
+    A mask per member per forward pass means k * n_weights random draws, which dominate the
+    layer's cost when drawn one float at a time. Drawing 64-bit words and reading them as
+    four 16-bit uniforms is 3x cheaper; p is thereby quantized to multiples of 1/65536.
+    """
+    n = math.prod(shape)
+    words = th.randint(-(2**63), 2**63 - 1, ((n + 3) // 4,), dtype=th.int64, device=device)
+    uniform16 = words.view(th.int16)[:n].view(shape)
+    return (uniform16 >= -32768 + round(p * 65536)).to(th.float32).mul_(1.0 / (1.0 - p))
+
+
+class MemberLinear(nn.Module):
+    """Linear layer on (k, n, d_in) -> (k, n, d_out).
+
+    shared:      one weight matrix for all members (Masksembles, MC Dropout).
+    ensemble:    k independent weight matrices, run as one batched matmul.
+    dropconnect: one weight matrix, but every member (sample) draws its own random weight
+                 mask at every forward pass, in training and at inference (MC DropConnect).
+    """
+
+    def __init__(self, d_in: int, d_out: int, k: int, mode: str = SHARED, p: float = 0.0, gain: float = math.sqrt(2)):
+        super().__init__()
+        if mode not in WEIGHT_MODES:
+            raise ValueError(f"unknown weight mode {mode!r}; use one of {WEIGHT_MODES}")
+        self.k, self.mode, self.p = k, mode, p
+        n_weights = k if mode == ENSEMBLE else 1
+        self.weight = nn.Parameter(th.empty(n_weights, d_out, d_in))
+        self.bias = nn.Parameter(th.zeros(n_weights, 1, d_out))
+        _orthogonal_(self.weight.data, gain)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        if self.mode == SHARED:
+            return F.linear(x, self.weight[0], self.bias[0, 0])
+        weight = self.weight
+        if self.mode == DROPCONNECT:
+            weight = weight * _dropconnect_mask((x.shape[0], *weight.shape[1:]), self.p, x.device)
+        return th.baddbmm(self.bias, x, weight.transpose(1, 2))
+
+    def extra_repr(self) -> str:
+        return f"d_in={self.weight.shape[2]}, d_out={self.weight.shape[1]}, k={self.k}, mode={self.mode}, p={self.p}"
+
+
+class MemberConv2d(nn.Module):
+    """Conv2d on (k, n, C, H, W) -> (k, n, C', H', W'), same three weight modes as MemberLinear.
+
+    Per-member weights run as one grouped convolution: members become channel groups.
+    """
+
+    def __init__(self, c_in: int, c_out: int, kernel: int, stride: int, k: int, mode: str = SHARED, p: float = 0.0,
+                 gain: float = math.sqrt(2)):
+        super().__init__()
+        if mode not in WEIGHT_MODES:
+            raise ValueError(f"unknown weight mode {mode!r}; use one of {WEIGHT_MODES}")
+        self.k, self.mode, self.p, self.stride = k, mode, p, stride
+        n_weights = k if mode == ENSEMBLE else 1
+        self.weight = nn.Parameter(th.empty(n_weights, c_out, c_in, kernel, kernel))
+        self.bias = nn.Parameter(th.zeros(n_weights, c_out))
+        _orthogonal_(self.weight.data, gain)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        k, n = x.shape[:2]
+        if self.mode == SHARED:
+            y = F.conv2d(x.reshape(k * n, *x.shape[2:]), self.weight[0], self.bias[0], stride=self.stride)
+            return y.view(k, n, *y.shape[1:])
+        weight, bias = self.weight, self.bias
+        if self.mode == DROPCONNECT:
+            weight = weight * _dropconnect_mask((k, *weight.shape[1:]), self.p, x.device)
+            bias = bias.expand(k, -1)
+        grouped = x.transpose(0, 1).reshape(n, k * x.shape[2], *x.shape[3:])
+        y = F.conv2d(grouped, weight.reshape(-1, *weight.shape[2:]), bias.reshape(-1), stride=self.stride, groups=k)
+        return y.view(n, k, -1, *y.shape[2:]).transpose(0, 1)
+
+
+class MasksemblesMask(nn.Module):
+    """Fixed binary mask j on member j's slice (features on the last axis, or channels of (k,n,C,H,W)).
+
+    The masks are a persistent buffer, so they are saved in the state dict and a reloaded
+    model gives identical outputs (the reference layer keeps them non-persistent).
+    """
+
+    def __init__(self, width: int, k: int, scale: float, seed: int):
+        super().__init__()
+        self.register_buffer("masks", th.as_tensor(generate_masksembles_masks(width, k, scale, seed), dtype=th.float32))
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        mask = self.masks[:, None, :]
+        if x.dim() == 5:
+            mask = mask[..., None, None]
+        return x * mask
+
+
+class MCDropout(nn.Module):
+    """Dropout that stays on at inference: each of the k member copies gets independent masks."""
+
+    def __init__(self, p: float):
+        super().__init__()
+        self.p = p
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return F.dropout(x, self.p, training=True)
+
+    def extra_repr(self) -> str:
+        return f"p={self.p}"
+
+
+def masksembles_kept_units(width: int, k: int, scale: float) -> int:
+    """Units each mask keeps, by the reference formula."""
+    return int(width / (scale * (1 - (1 - 1 / scale) ** k)))
+
+
+def generate_masksembles_masks(width: int, k: int, scale: float, seed: int, max_tries: int = 10_000) -> np.ndarray:
+    """The reference `masksembles.common.generation_wrapper`, bounded and seeded.
+
+    The reference draws from numpy's global RNG and its retry loops are unbounded for some
+    inputs; this runs the same steps (same draws, hence the same masks for the same global
+    seed) from a private seed, restores the global RNG state, and gives up with a clear
+    error instead of hanging.
+    """
+    validate_masksembles(width, k, scale)
+    kept = masksembles_kept_units(width, k, scale)
+    saved_state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        low, high = max(scale * 0.8, 1.0), scale * 1.2
+        for _ in range(1000):
+            mid = (low + high) / 2
+            masks = _generate_masks_bounded(kept, k, mid, max_tries)
+            if masks.shape[-1] == width:
+                return masks.astype(np.float32)
+            if masks.shape[-1] > width:
+                high = mid
+            else:
+                low = mid
+    finally:
+        np.random.set_state(saved_state)
+    raise ValueError(
+        f"Masksembles could not generate {k} masks of width {width} with scale {scale}; "
+        "change masksembles_scale (e.g. 2.0) or the layer width"
+    )
+
+
+def _generate_masks_bounded(kept: int, k: int, scale: float, max_tries: int) -> np.ndarray:
+    expected = int(kept * scale * (1 - (1 - 1 / scale) ** k))
+    for _ in range(max_tries):
+        masks = generate_masks_(kept, k, scale)
+        if masks.shape[1] == expected:
+            return masks
+    raise ValueError(
+        f"Masksembles mask generation did not converge (kept={kept}, k={k}, scale={scale:.3f}); "
+        "change masksembles_scale or the layer width"
+    )
+
+
+def validate_masksembles(width: int, k: int, scale: float) -> None:
+    """Reject what the reference generation cannot satisfy, before anything is built."""
+    if not 1.0 <= scale <= 6.0:
+        raise ValueError(f"masksembles_scale={scale} is outside [1, 6], the range the mask generation supports")
+    if width < 10:
+        raise ValueError(f"a Masksembles layer needs width >= 10, got {width}; widen the layer")
+    if masksembles_kept_units(width, k, scale) < 1:
+        raise ValueError(f"width {width} with k={k} and scale={scale} keeps no unit per mask; widen the layer or lower the scale")

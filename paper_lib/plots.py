@@ -1,0 +1,177 @@
+"""Paper figures from tidy DataFrames, drawn with seaborn.
+
+Figures are built as ``matplotlib.figure.Figure`` objects on an Agg canvas rather
+than through pyplot: no global backend switch (notebooks keep their inline
+backend and still display the returned figure), no GUI, and no figure registry
+that leaks memory in long pipelines. ``save_figure`` writes PNG + PDF atomically
+with the PDF creation date removed, so equal inputs give byte-identical files.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib.pyplot as plt  # only for plt.close; figures are built without pyplot
+import pandas as pd
+import seaborn as sns
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from paper_lib.io import atomic_path
+
+PANEL_SIZE = (4.0, 3.2)  # inches per panel
+
+
+def _require_columns(df: pd.DataFrame, columns: list[str], where: str) -> None:
+    """Raise one ValueError naming every missing column (and the ones that exist)."""
+    if not isinstance(df, pd.DataFrame):
+        raise ValueError(f"{where}: expected a pandas DataFrame, got {type(df).__name__}.")
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise ValueError(f"{where}: missing column(s) {missing}; the frame has {list(df.columns)}.")
+    if df.empty:
+        raise ValueError(f"{where}: the DataFrame is empty; there is nothing to plot.")
+
+
+def _new_figure(n_panels: int = 1, sharey: bool = True, legend_width: float = 0.0) -> tuple[Figure, list]:
+    """A Figure on an Agg canvas with ``n_panels`` side-by-side axes (plus room for an outside legend)."""
+    fig = Figure(figsize=(PANEL_SIZE[0] * n_panels + legend_width, PANEL_SIZE[1]), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, n_panels, sharey=sharey, squeeze=False)[0]
+    return fig, list(axes)
+
+
+def _keep_last_legend(axes: list, outside: bool = False) -> None:
+    """Panels share hue/style, so one legend (on the last panel) is enough; ``outside`` keeps it off the data."""
+    for ax in axes[:-1]:
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+    if outside and axes[-1].get_legend() is not None:
+        sns.move_legend(axes[-1], "upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+
+
+def save_figure(fig: Figure, stem: str | os.PathLike[str], dpi: int = 150) -> dict[str, Path]:
+    """Write ``stem``.png (``dpi``) and ``stem``.pdf atomically, then close the figure.
+
+    The PDF's CreationDate is dropped so that re-running a pipeline with the same
+    inputs reproduces the file byte for byte (PNG from Agg carries no timestamp).
+    """
+    if not isinstance(fig, Figure):
+        raise ValueError(f"save_figure: expected a matplotlib Figure, got {type(fig).__name__}.")
+    paths = {"png": Path(f"{os.fspath(stem)}.png"), "pdf": Path(f"{os.fspath(stem)}.pdf")}
+    try:
+        with atomic_path(paths["png"]) as tmp:
+            fig.savefig(tmp, format="png", dpi=dpi)
+        with atomic_path(paths["pdf"]) as tmp:
+            fig.savefig(tmp, format="pdf", metadata={"CreationDate": None})
+    finally:
+        plt.close(fig)  # releases pyplot's reference if the caller made the figure with pyplot
+    return paths
+
+
+def roc_curves(df: pd.DataFrame) -> Figure:
+    """ROC curves (OOD = positive), one panel per env, colour = method, line style = measure.
+
+    Expects columns fpr, tpr, method, measure, env, one row per ROC point (e.g.
+    ``metrics.roc_points`` output with labels added). A grey diagonal marks chance.
+    """
+    _require_columns(df, ["fpr", "tpr", "method", "measure", "env"], "roc_curves")
+    envs = list(pd.unique(df["env"]))
+    fig, axes = _new_figure(len(envs), legend_width=1.6)
+    for ax, env in zip(axes, envs):
+        sub = df[df["env"] == env]
+        # estimator=None: ROC points share fpr values at vertical steps and must not be averaged.
+        sns.lineplot(data=sub, x="fpr", y="tpr", hue="method", style="measure", estimator=None, ax=ax,
+                     hue_order=list(pd.unique(df["method"])), style_order=list(pd.unique(df["measure"])))
+        ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
+        ax.set(title=str(env), xlim=(0, 1), ylim=(0, 1.01))
+        ax.set(xlabel="FPR (ID flagged as OOD)", ylabel="TPR (OOD detected)")
+    _keep_last_legend(axes, outside=True)
+    return fig
+
+
+def uncertainty_over_time(df: pd.DataFrame) -> Figure:
+    """Uncertainty per evaluation step, colour = method; a red vertical line where ID ends and OOD begins.
+
+    Expects columns step, score, method, phase ("id" or "ood"); all ID steps must
+    come before all OOD steps (the states are evaluated as one ID-then-OOD stream).
+    """
+    _require_columns(df, ["step", "score", "method", "phase"], "uncertainty_over_time")
+    phases = set(pd.unique(df["phase"]))
+    if not phases <= {"id", "ood"} or len(phases) != 2:
+        raise ValueError(
+            f"uncertainty_over_time: phase must take both values 'id' and 'ood' only, got {sorted(map(str, phases))}."
+        )
+    last_id, first_ood = df.loc[df["phase"] == "id", "step"].max(), df.loc[df["phase"] == "ood", "step"].min()
+    if not last_id < first_ood:
+        raise ValueError(f"uncertainty_over_time: ID steps must precede OOD steps, but the last ID step is {last_id} "
+                         f"and the first OOD step is {first_ood}; number the OOD states after the ID ones.")
+    fig, (ax,) = _new_figure(1)
+    sns.lineplot(data=df, x="step", y="score", hue="method", errorbar=None, linewidth=0.8, ax=ax,
+                 hue_order=list(pd.unique(df["method"])))
+    ax.axvline((last_id + first_ood) / 2, color="red", linewidth=1.5)
+    ax.set(xlabel="step (ID, then OOD)", ylabel="uncertainty")
+    return fig
+
+
+def training_curves(df: pd.DataFrame) -> Figure:
+    """Episode reward over training, one panel per env: mean over seeds with a ±1 std band.
+
+    Expects columns timesteps, reward, method, env, seed; seeds should log at the
+    same timesteps (bin them first otherwise) so the mean is taken over seeds.
+    """
+    _require_columns(df, ["timesteps", "reward", "method", "env", "seed"], "training_curves")
+    envs = list(pd.unique(df["env"]))
+    fig, axes = _new_figure(len(envs), sharey=False)  # reward scales differ per env
+    for ax, env in zip(axes, envs):
+        sns.lineplot(data=df[df["env"] == env], x="timesteps", y="reward", hue="method", errorbar="sd", ax=ax,
+                     hue_order=list(pd.unique(df["method"])))
+        ax.set(title=str(env), xlabel="timesteps", ylabel="episode reward")
+    _keep_last_legend(axes)
+    return fig
+
+
+def normalized_bars(df: pd.DataFrame) -> Figure:
+    """Mean uncertainty under each perturbation relative to unperturbed ID states (ID = 1.0).
+
+    Expects columns perturbation, method, ratio, where ratio is already divided by
+    the method's mean ID uncertainty. Several rows per (perturbation, method), e.g.
+    seeds, are averaged and shown with a ±1 std error bar. Dashed line: ratio 1.
+    """
+    _require_columns(df, ["perturbation", "method", "ratio"], "normalized_bars")
+    fig, (ax,) = _new_figure(1)
+    fig.set_figwidth(max(PANEL_SIZE[0], 0.9 * df["perturbation"].nunique() * max(1, df["method"].nunique()) ** 0.5))
+    sns.barplot(data=df, x="perturbation", y="ratio", hue="method", errorbar="sd", ax=ax,
+                order=list(pd.unique(df["perturbation"])), hue_order=list(pd.unique(df["method"])))
+    ax.axhline(1.0, color="black", linestyle="--", linewidth=1)
+    ax.set(xlabel="perturbation", ylabel="uncertainty / ID uncertainty")
+    ax.tick_params(axis="x", labelrotation=30)
+    return fig
+
+
+def pareto_scatter(df: pd.DataFrame) -> Figure:
+    """Reward vs. AUROC of every configuration (colour = method); Pareto-optimal ones enlarged with a black edge.
+
+    Expects columns reward, auroc, method, is_pareto (bool). The Pareto set is the
+    caller's: this function only draws it.
+    """
+    _require_columns(df, ["reward", "auroc", "method", "is_pareto"], "pareto_scatter")
+    if not pd.api.types.is_bool_dtype(df["is_pareto"]):
+        raise ValueError(
+            f"pareto_scatter: column 'is_pareto' must be boolean, got dtype {df['is_pareto'].dtype}; use .astype(bool)."
+        )
+    fig, (ax,) = _new_figure(1, legend_width=1.6)
+    hue_order = list(pd.unique(df["method"]))
+    sns.scatterplot(data=df, x="reward", y="auroc", hue="method", hue_order=hue_order, s=18, alpha=0.6,
+                    linewidth=0, ax=ax)
+    front = df[df["is_pareto"]]
+    if not front.empty:
+        sns.scatterplot(data=front, x="reward", y="auroc", hue="method", hue_order=hue_order, s=70,
+                        edgecolor="black", linewidth=1.2, legend=False, ax=ax)
+    ax.set(xlabel="episode reward", ylabel="OOD AUROC")
+    _keep_last_legend([ax], outside=True)
+    return fig
+
+
+__all__ = ["save_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars", "pareto_scatter"]
