@@ -52,6 +52,7 @@ def make_agent(
     masksembles_scale: float = 2.0,
     n_envs: int | None = None,
     overrides: dict[str, Any] | None = None,
+    hyperparameters: dict[str, Any] | None = None,
     env: VecEnv | None = None,
     device: str = "cpu",
     verbose: int = 0,
@@ -59,7 +60,8 @@ def make_agent(
 ) -> BaseAlgorithm:
     """Build an SB3 model with the paper's hyperparameters for `env_id` and the given method.
 
-    `overrides` replaces entries of the algorithm settings (e.g. {"n_steps": 64}). Every
+    `hyperparameters` replaces the packaged table entry for `env_id` (the pipeline passes
+    params.yaml's). `overrides` replaces entries of the algorithm settings (e.g. {"n_steps": 64}). Every
     input is checked before an env or network is built. The resolved settings are kept on the
     model as `model.paper_lib_config` and saved with it.
     """
@@ -71,7 +73,7 @@ def make_agent(
         raise ValueError(f"unknown assignment {assignment!r}; use one of {ASSIGNMENTS}")
     if inference not in INFERENCE_MODES:
         raise ValueError(f"unknown inference mode {inference!r}; use one of {INFERENCE_MODES}")
-    hp = paper_hyperparameters(env_id)
+    hp = paper_hyperparameters(env_id) if hyperparameters is None else copy.deepcopy(hyperparameters)
     algo_kwargs = {**hp["algo"], **(overrides or {})}
     unknown = set(overrides or {}) - set(hp["algo"])
     if unknown:
@@ -92,7 +94,8 @@ def make_agent(
     config = dict(algo=algo, method=method, env_id=env_id, seed=seed, n_envs=n_envs, n_members=n_members,
                   assignment=assignment, inference=inference, dropout_p=dropout_p,
                   masksembles_scale=masksembles_scale, hidden_sizes=hidden, normalize_obs=hp["normalize_obs"],
-                  algo_kwargs=dict(algo_kwargs), linear_lr_decay=bool(hp.get("linear_lr_decay", False)))
+                  algo_kwargs=dict(algo_kwargs), linear_lr_decay=bool(hp.get("linear_lr_decay", False)),
+                  total_timesteps=hp.get("total_timesteps"))
 
     if env is None:
         env = make_env(env_id, n_envs, seed, normalize_obs=hp["normalize_obs"])

@@ -29,7 +29,7 @@ from paper_lib.provenance import machine, package_versions
 
 
 class TrainingCurve(BaseCallback):
-    """Mean training-episode return (sampled actions, Monitor's last 100 episodes) per rollout."""
+    """Per rollout: mean training-episode return (sampled actions, Monitor's last 100 episodes)."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -45,6 +45,8 @@ class TrainingCurve(BaseCallback):
             "timesteps": self.num_timesteps,
             "reward": float(np.mean([e["r"] for e in episodes])) if episodes else float("nan"),
             "episode_length": float(np.mean([e["l"] for e in episodes])) if episodes else float("nan"),
+            # mean reward per env step of this rollout: defined even before any episode has ended
+            "step_reward": float(np.mean(self.model.rollout_buffer.rewards)),
             "wall_seconds": time.perf_counter() - self.start,
         })
 
@@ -64,8 +66,7 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
     th.set_num_threads(torch_threads)
     out_dir = Path(out_dir)
     model = make_agent(algo, method, env_id, seed, **(agent_kwargs or {}))
-    steps = int(total_timesteps if total_timesteps is not None else model.paper_lib_config.get("total_timesteps")
-                or _default_steps(env_id))
+    steps = int(total_timesteps if total_timesteps is not None else model.paper_lib_config["total_timesteps"])
     curve = TrainingCurve()
     started = time.perf_counter()
     model.learn(steps, callback=curve, progress_bar=progress_bar)
@@ -89,12 +90,6 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out_dir
-
-
-def _default_steps(env_id: str) -> int:
-    from paper_lib.agents import paper_hyperparameters
-
-    return int(paper_hyperparameters(env_id)["total_timesteps"])
 
 
 def main() -> None:

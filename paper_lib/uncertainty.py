@@ -10,6 +10,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from paper_lib import measures
+from paper_lib.methods.networks import to_members
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
 
@@ -61,7 +62,7 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
 
     value_std, policy_std and policy_js need members; max_prob and entropy exist for discrete
     actions only. A baseline policy (no members) gives max_prob and entropy; asking it for a
-    member measure is an error.
+    member measure is an error. A baseline with continuous actions has no measure: {}.
     """
     out = member_outputs(policy, observations, batch_size)
     k = out.values.shape[0]
@@ -74,7 +75,37 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
                                  "use a member method or ask for max_prob / entropy")
             raise ValueError(f"measure {name!r} is not available here; available: {available}")
     if not wanted:
-        raise ValueError("this policy has no members and continuous actions: no uncertainty measure applies")
+        return {}  # a baseline with continuous actions: no measure applies (member-free detectors still do)
     computed = measures.all_measures(out.values, out.action_params, out.discrete) if k > 1 else {
         "max_prob": measures.max_prob(out.action_params), "entropy": measures.entropy(out.action_params)}
     return {name: computed[name] for name in wanted}
+
+
+def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024) -> np.ndarray:
+    """The policy's last hidden layer on N states, (N, H): the input of its action head.
+
+    For member policies the members' features are averaged, so a member-free detector
+    (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
+    """
+    obs = np.asarray(observations)
+    chunks = []
+    policy.set_training_mode(False)
+    with th.no_grad():
+        for start in range(0, obs.shape[0], batch_size):
+            tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
+            chunks.append(_last_hidden(policy, tensor).cpu().numpy())
+    return np.concatenate(chunks)
+
+
+def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
+    features = policy.extract_features(obs)
+    if isinstance(policy, MemberActorCriticPolicy):
+        net = policy.mlp_extractor
+        if hasattr(net, "policy_tower"):
+            x = net.policy_tower[:-1](to_members(features, net.k, "all"))
+        else:
+            x = net.trunk(to_members(features, net.k, "all"))
+        return x.mean(0)
+    if not policy.share_features_extractor:
+        features = features[0]
+    return policy.mlp_extractor.forward_actor(features)

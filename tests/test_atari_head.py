@@ -12,7 +12,7 @@ import pytest
 from stable_baselines3.common.atari_wrappers import MaxAndSkipEnv, WarpFrame
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
-from paper_lib.ood.atari_head import LABEL_HEADER, list_trials, load_atari_head_states, read_labels
+from paper_lib.ood.atari_head import LABEL_HEADER, list_trials, load_atari_head_states, read_labels, warp_frame
 
 # trial name -> episode id of each frame (Atari-HEAD writes "null" outside episodes)
 TRIALS = {
@@ -103,6 +103,13 @@ def test_labels_parse_null_and_variable_gaze(head_root):
     assert labels[4].score == 40 and labels[4].action == 4
     assert {len(lab.gaze) for lab in labels} <= {0, 1, 2, 3} and len({len(lab.gaze) for lab in labels}) > 1
     assert list_trials(root, "Seaquest") == sorted(TRIALS)
+
+
+def test_warp_frame_is_sb3_warp_frame():
+    frame = synthetic_frame(np.random.default_rng(3))
+    expected = WarpFrame(ReplayEnv([frame])).observation(frame)[:, :, 0]
+    np.testing.assert_array_equal(warp_frame(frame), expected)
+    assert expected.shape == (84, 84) and len(np.unique(expected)) > 50
 
 
 @pytest.mark.parametrize("frame_skip", [4, 1])

@@ -13,6 +13,7 @@ from paper_lib.ood.atari import (
     DEFAULT_SOURCE,
     OOD_SOURCE_NOTES,
     AtariOODConfig,
+    describe_source,
     make_atari_env_single,
     make_ood_atari_env,
     ood_sources,
@@ -84,6 +85,7 @@ def test_sources_and_notes_cover_every_game():
         sources = ood_sources(game)
         assert sources[0] == DEFAULT_SOURCE[game] and len(set(sources)) == len(sources)
         assert f"`{DEFAULT_SOURCE[game]}`" in OOD_SOURCE_NOTES[game]
+        assert all(describe_source(game, s).startswith(f"{game} {s} (") for s in sources)
 
 
 def test_sample_is_seeded_valid_and_json_serializable():

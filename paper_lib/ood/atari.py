@@ -53,11 +53,12 @@ _SOURCES: dict[str, dict[str, _Source]] = {
         "extra_lives": _Source((4, 5, 6), ram=(59,),
                                what="reserve submarines shown at the top (one is earned per 10,000 points)"),
         "divers": _Source((4, 5, 6), ram=(62,), what="many rescued divers shown above the logo"),
-        "difficulty": _Source((1,), make_arg="difficulty", what="ALE difficulty 1 (rule variant)"),
+        "difficulty": _Source((1,), make_arg="difficulty",
+                              what="ALE difficulty 1: only the torpedo's RAM differs (a weak source)"),
     },
     "MsPacman": {
         "maze": _Source((1, 2, 3), ram=(0,), what="the maze layouts of later levels"),
-        "mode": _Source((1, 2, 3), make_arg="mode", what="ALE game variant: other bonus fruit and game speed"),
+        "mode": _Source((1, 2, 3), make_arg="mode", what="ALE game variant: another bonus fruit, and play diverges"),
     },
     "Berzerk": {
         # RAM 92 counts the rooms entered (+1 per room, also after a death); the robots'
@@ -96,14 +97,14 @@ OOD_SOURCE_NOTES: dict[str, str] = {
         "enemies enter about 30 agent steps after a reset or a death; the states before look like level 0, "
         "so drop them (as the paper dropped the first 10 states of each MuJoCo episode). Also available: "
         "`extra_lives` and `divers` (HUD states of strong human play, the paper's Seaquest example) and "
-        "`difficulty` 1 (changes only the torpedo: a weak source)."
+        "`difficulty` 1 (only the torpedo's RAM differs: a weak source)."
     ),
     "MsPacman": (
         "Default `maze` (values 1-3): RAM byte 0 is set to k after every reset, which gives the maze layouts "
         "of later levels (15-17% of the screen's pixels differ from the first maze). Agents at the paper's "
         "scores (~2,400) do not clear the first levels, and the paper names this very example (the level "
-        "'can be selected at initialization'). Also available: ALE `mode` 1-3 (other bonus fruit and speed; "
-        "a small change of the picture)."
+        "'can be selected at initialization'). Also available: ALE `mode` 1-3 (another bonus fruit, and the "
+        "play diverges from the default within a few steps; a small change of the picture)."
     ),
     "Berzerk": (
         "Default `level` (values 10-15): RAM byte 92 counts the rooms entered in a game (also after each "
@@ -148,6 +149,14 @@ def source_values(game: str, source: str) -> tuple[int, ...]:
     return _SOURCES[game][source].values
 
 
+def describe_source(game: str, source: str) -> str:
+    """One line on what a source changes, e.g. for table captions."""
+    source_values(game, source)  # validates
+    spec = _SOURCES[game][source]
+    how = f"RAM {list(spec.ram)} := value" if spec.ram else f"ALE {spec.make_arg} = value"
+    return f"{game} {source} ({how}): {spec.what}"
+
+
 @dataclass(frozen=True)
 class AtariOODConfig:
     """One OOD environment: ``game`` started in ``source`` at strength ``value``; ``seed`` seeds the env."""
@@ -160,7 +169,8 @@ class AtariOODConfig:
     def __post_init__(self) -> None:
         values = source_values(self.game, self.source)
         if isinstance(self.value, bool) or not isinstance(self.value, (int, np.integer)) or self.value not in values:
-            raise ValueError(f"value={self.value!r} is not valid for {self.game}/{self.source}: use one of {list(values)}.")
+            raise ValueError(f"value={self.value!r} is not valid for {self.game}/{self.source}: "
+                             f"use one of {list(values)}.")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"seed={self.seed!r}: need a non-negative int.")
         # numpy ints would break json.dumps: store plain ints.
@@ -253,6 +263,8 @@ def make_ood_atari_env(config: AtariOODConfig, **wrapper_kwargs: Any) -> gym.Env
     """A gymnasium env that starts every game in the state ``config`` describes.
 
     ``wrapper_kwargs`` go to SB3's AtariWrapper (defaults: the agent's training setup).
+    RAM edits show on screen from the first emulated frame after the reset; with
+    ``noop_max=0`` the observation that ``reset`` returns still predates them.
     """
     if not isinstance(config, AtariOODConfig):
         raise ValueError(f"config must be an AtariOODConfig, got {type(config).__name__}.")

@@ -170,8 +170,9 @@ def load_atari_head_states(root: str | Path, game: str, n_states: int, rng: np.r
     """Sample ``n_states`` stacked states (N, 84, 84, 4) uint8 from the human play of ``game``.
 
     States are drawn uniformly without replacement over all trials and all agent steps
-    that have 4 full stacked images inside one episode. Returns the states and, per
-    state, its trial and raw frame ids.
+    that have 4 full stacked images inside one episode (rows with the same episode id).
+    Returns the states, in the drawn order, and per state its trial and raw frame ids.
+    ``frame_skip=1`` takes every row as one agent step, without max-pooling.
     """
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")

@@ -1,7 +1,8 @@
 """Pixel perturbations of ID states (paper appendix H) and the noise OOD of the meta-optimization (section 5).
 
 Appendix H replaces or corrupts Seaquest frames: a black frame, a white frame, uniform
-noise of +-50, +-100 or +-150 grey levels, and a static mask over part of the frame.
+noise of +-50, +-100 or +-150 grey levels (its text says Gaussian, its figures "Uniform
+Noise [-50;50]": we follow the figures), and a static mask over part of the frame.
 The paper moved away from these (they say little about real OOD states) but reports
 them; they are kept as a sanity check of the uncertainty measures.
 

@@ -1,0 +1,70 @@
+"""Reward evaluation (paper Table 1): combined and single-member inference, deterministic and sampled.
+
+Single-member rows: each of the k members plays its share of the episodes (member m plays
+episodes m, m+k, ...), so every member is represented and the row averages over members.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from stable_baselines3.common.evaluation import evaluate_policy
+
+from paper_lib.checkpoints import Checkpoint
+from paper_lib.methods.policy import MemberActorCriticPolicy
+
+
+def evaluate_rewards(checkpoint: Checkpoint, episodes: int, seed: int) -> pd.DataFrame:
+    """One row per episode: inference (combined/single), deterministic, member, reward, length."""
+    policy = checkpoint.model.policy
+    rows = []
+    has_members = isinstance(policy, MemberActorCriticPolicy)
+    saved = policy.inference if has_members else None
+    try:
+        for deterministic in (True, False):
+            for inference in (("combined", "single") if has_members else ("single",)):
+                rows += _episodes(checkpoint, policy, inference, deterministic, episodes, seed, has_members)
+    finally:
+        if has_members:
+            policy.set_inference(*saved)
+    return pd.DataFrame(rows)
+
+
+def _episodes(checkpoint: Checkpoint, policy, inference: str, deterministic: bool, episodes: int, seed: int,
+              has_members: bool) -> list[dict]:
+    rows = []
+    plan = [(None, episodes)] if inference == "combined" or not has_members else [
+        (m, len(range(m, episodes, policy.n_members))) for m in range(policy.n_members)]
+    for member, n in plan:
+        if n == 0:
+            continue
+        if has_members:
+            policy.set_inference(checkpoint.config.get("inference", "vote") if member is None else "single", member)
+        env = checkpoint.env(1, seed + (member or 0) * 1000)
+        rewards, lengths = evaluate_policy(checkpoint.model, env, n_eval_episodes=n, deterministic=deterministic,
+                                           return_episode_rewards=True)
+        env.close()
+        rows += [{"inference": inference, "deterministic": deterministic, "member": member, "reward": float(r),
+                  "length": int(l)} for r, l in zip(rewards, lengths)]
+    return rows
+
+
+def summarize_rewards(df: pd.DataFrame) -> pd.DataFrame:
+    """Mean and std per env, method, inference and action mode.
+
+    With several seeds: the mean over seeds of each seed's episode mean, and the std across
+    seeds (the paper's Table 1). With one seed: the std is over episodes, and `std_over` says so.
+    """
+    keys = [c for c in ("env", "method", "inference", "deterministic") if c in df.columns]
+    per_seed = df.groupby([*keys, "seed"])["reward"].mean().reset_index()
+    out = per_seed.groupby(keys)["reward"].agg(mean="mean", std="std", n_seeds="count").reset_index()
+    episodes = df.groupby(keys)["reward"].agg(episode_std="std", n_episodes="count").reset_index()
+    out = out.merge(episodes, on=keys)
+    single_seed = out["n_seeds"] < 2
+    out.loc[single_seed, "std"] = out.loc[single_seed, "episode_std"]
+    out["std_over"] = np.where(single_seed, "episodes", "seeds")
+    return out.drop(columns="episode_std")
+
+
+def action_mode_label(deterministic: bool) -> str:
+    return "deterministic" if deterministic else "sampled"

@@ -1,0 +1,208 @@
+"""StateDataset: ID and OOD states with where each came from, in one file per collection.
+
+The OOD benchmark compares uncertainty scores of ID states (label 0) and OOD states
+(label 1). Keeping each state's origin (source, configuration, episode, step) beside
+it lets an analysis split results by perturbation kind or drop early-episode states
+without re-running any rollout, and the metadata (env, action mode, seeds, protocol)
+says how the file was made.
+
+``states`` are raw env observations (before any VecNormalize), so detectors and
+plots see physical quantities; ``policy_obs`` holds what the policy saw when the
+agent was trained with VecNormalize (Walker2d), so scores use the policy's input.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from paper_lib.io import save_npz_atomic
+
+FORMAT = "paper_lib.StateDataset/1"
+ID_LABEL, OOD_LABEL = 0, 1
+NO_CONFIG = -1  # config_index of a state collected in the unmodified env
+
+
+def _json_normalized(obj: Any, what: str) -> Any:
+    """``obj`` as it reads back from JSON (tuples become lists), so save/load is exact."""
+    try:
+        return json.loads(json.dumps(obj, sort_keys=True))
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{what} must be JSON-serializable (plain dicts, lists, str, numbers): {err}") from err
+
+
+@dataclass(eq=False)
+class StateDataset:
+    """N states with labels and provenance; every per-state array has length N.
+
+    ``config_index[i]`` indexes ``configs`` (JSON strings of the OOD configuration the
+    state was collected in), or is -1 for states of the unmodified env.
+    """
+
+    states: np.ndarray  # (N, *obs_shape) raw env observations
+    labels: np.ndarray  # (N,) 0 = ID, 1 = OOD
+    source: np.ndarray  # (N,) str: "id", "gravity+friction", "pixels:black", ...
+    config_index: np.ndarray  # (N,) int, -1 = no configuration
+    episode: np.ndarray  # (N,) int, episode number within the collection (episodes that kept states)
+    step: np.ndarray  # (N,) int, step within that episode (0 = the reset observation)
+    configs: list[str] = field(default_factory=list)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    policy_obs: np.ndarray | None = None  # (N, *obs_shape) normalized obs, only with VecNormalize
+
+    def __post_init__(self) -> None:
+        self.states = np.asarray(self.states)
+        if self.states.ndim < 2:
+            raise ValueError(f"states must have shape (N, *obs_shape), got {self.states.shape}; "
+                             "for one state use states[None].")
+        n = len(self.states)
+        self.labels = np.asarray(self.labels, dtype=np.int8)
+        self.source = np.asarray(self.source, dtype=str)
+        self.config_index = np.asarray(self.config_index, dtype=np.int64)
+        self.episode = np.asarray(self.episode, dtype=np.int64)
+        self.step = np.asarray(self.step, dtype=np.int64)
+        for name in ("labels", "source", "config_index", "episode", "step"):
+            arr = getattr(self, name)
+            if arr.shape != (n,):
+                raise ValueError(f"{name} has shape {arr.shape} but there are {n} states: give one entry per state.")
+        if not np.isin(self.labels, (ID_LABEL, OOD_LABEL)).all():
+            raise ValueError(f"labels must be 0 (ID) or 1 (OOD), got values {np.unique(self.labels).tolist()}.")
+        self.configs = [str(c) for c in self.configs]
+        bad = (self.config_index < NO_CONFIG) | (self.config_index >= len(self.configs))
+        if bad.any():
+            raise ValueError(f"config_index holds {self.config_index[bad][:5].tolist()}, outside "
+                             f"[-1, {len(self.configs) - 1}]: each must index configs or be -1.")
+        self.metadata = _json_normalized(dict(self.metadata), "metadata")
+        if self.policy_obs is not None:
+            self.policy_obs = np.asarray(self.policy_obs)
+            if len(self.policy_obs) != n:
+                raise ValueError(f"policy_obs has {len(self.policy_obs)} rows but there are {n} states.")
+
+    def __len__(self) -> int:
+        return len(self.states)
+
+    def __repr__(self) -> str:
+        n_ood = int(self.labels.sum())
+        return (f"StateDataset({len(self)} states {self.states.shape[1:]} {self.states.dtype}: "
+                f"{len(self) - n_ood} ID, {n_ood} OOD, sources {sorted(set(self.source.tolist()))})")
+
+    def config_json(self, i: int) -> str | None:
+        """The JSON configuration state ``i`` was collected in, None for the unmodified env."""
+        k = int(self.config_index[i])
+        return None if k == NO_CONFIG else self.configs[k]
+
+    def equals(self, other: StateDataset) -> bool:
+        """Exact equality of every array, config and metadata entry."""
+        arrays = ("states", "labels", "source", "config_index", "episode", "step")
+        same = all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+        same &= self.states.dtype == other.states.dtype
+        same &= (self.policy_obs is None) == (other.policy_obs is None)
+        if self.policy_obs is not None and other.policy_obs is not None:
+            same &= np.array_equal(self.policy_obs, other.policy_obs)
+        return bool(same and self.configs == other.configs and self.metadata == other.metadata)
+
+    # --------------------------------------------------------------- selection
+    def subset(self, mask: np.ndarray) -> StateDataset:
+        """The states where ``mask`` (boolean of length N, or integer indices) selects them.
+
+        ``configs`` is kept whole so config indices stay valid.
+        """
+        mask = np.asarray(mask)
+        if mask.size == 0:
+            mask = mask.astype(np.int64)  # np.asarray([]) is float: select nothing
+        if mask.dtype == bool and mask.shape != (len(self),):
+            raise ValueError(f"boolean mask has shape {mask.shape}; need ({len(self)},), one entry per state.")
+        if mask.dtype != bool and not np.issubdtype(mask.dtype, np.integer) and mask.size > 0:
+            raise ValueError(f"mask must be boolean or integer indices, got dtype {mask.dtype}.")
+        return StateDataset(
+            states=self.states[mask], labels=self.labels[mask], source=self.source[mask],
+            config_index=self.config_index[mask], episode=self.episode[mask], step=self.step[mask],
+            configs=list(self.configs), metadata=dict(self.metadata),
+            policy_obs=None if self.policy_obs is None else self.policy_obs[mask],
+        )
+
+    def id_only(self) -> StateDataset:
+        return self.subset(self.labels == ID_LABEL)
+
+    def ood_only(self) -> StateDataset:
+        return self.subset(self.labels == OOD_LABEL)
+
+    # --------------------------------------------------------------------- I/O
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write one compressed ``.npz`` (atomic); configs and metadata go in as JSON text."""
+        arrays: dict[str, np.ndarray] = dict(
+            format=np.array(FORMAT), states=self.states, labels=self.labels, source=self.source,
+            config_index=self.config_index, episode=self.episode, step=self.step,
+            configs=np.array(json.dumps(self.configs)), metadata=np.array(json.dumps(self.metadata, sort_keys=True)),
+        )
+        if self.policy_obs is not None:
+            arrays["policy_obs"] = self.policy_obs
+        return save_npz_atomic(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> StateDataset:
+        """Read a file written by ``save``; a missing or damaged file raises a clear error."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"No StateDataset at {path}: run the collection that writes it first, "
+                                    "or check the path.")
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                if "format" not in f.files or str(f["format"]) != FORMAT:
+                    raise ValueError(f"it has no '{FORMAT}' format tag")
+                data = {k: f[k] for k in f.files}
+            return cls(
+                states=data["states"], labels=data["labels"], source=data["source"],
+                config_index=data["config_index"], episode=data["episode"], step=data["step"],
+                configs=json.loads(str(data["configs"])), metadata=json.loads(str(data["metadata"])),
+                policy_obs=data.get("policy_obs"),
+            )
+        except Exception as err:  # zip, npy, JSON and field errors all mean one thing here
+            raise ValueError(f"{path} is not a readable StateDataset ({type(err).__name__}: {err}); the file is "
+                             "damaged or was written by something else: delete it and re-run the collection.") from err
+
+
+def concat(a: StateDataset, b: StateDataset) -> StateDataset:
+    """One dataset holding ``a``'s states then ``b``'s (e.g. ID + OOD for scoring).
+
+    Both must come from the same env, agent and action mode, or the comparison is not fair.
+    ``b``'s config indices are remapped into the merged ``configs`` list (identical
+    configurations share one entry). Metadata entries equal in both are kept at the
+    top level; both originals are kept under ``"parts"``.
+    """
+    if not (isinstance(a, StateDataset) and isinstance(b, StateDataset)):
+        raise TypeError(f"concat needs two StateDatasets, got {type(a).__name__} and {type(b).__name__}.")
+    for key in ("env_id", "model", "action_mode"):
+        if key in a.metadata and key in b.metadata and a.metadata[key] != b.metadata[key]:
+            raise ValueError(f"cannot concat datasets with different {key}: {a.metadata[key]!r} vs "
+                             f"{b.metadata[key]!r}; collect ID and OOD states with the same {key}.")
+    if a.states.shape[1:] != b.states.shape[1:] or a.states.dtype != b.states.dtype:
+        raise ValueError(f"state shapes differ: {a.states.shape[1:]} {a.states.dtype} vs "
+                         f"{b.states.shape[1:]} {b.states.dtype}.")
+    if (a.policy_obs is None) != (b.policy_obs is None):
+        raise ValueError("one dataset has policy_obs (collected with VecNormalize) and the other has not: "
+                         "collect both with the same vecnormalize.")
+    configs = list(a.configs)
+    position = {c: i for i, c in enumerate(configs)}
+    remap = np.empty(len(b.configs), dtype=np.int64)
+    for i, c in enumerate(b.configs):
+        if c not in position:
+            position[c] = len(configs)
+            configs.append(c)
+        remap[i] = position[c]
+    b_index = b.config_index.copy()
+    has_config = b_index != NO_CONFIG
+    b_index[has_config] = remap[b_index[has_config]]
+    metadata = {k: v for k, v in a.metadata.items() if k != "parts" and b.metadata.get(k) == v}
+    metadata["parts"] = a.metadata.get("parts", [a.metadata]) + b.metadata.get("parts", [b.metadata])
+    return StateDataset(
+        states=np.concatenate([a.states, b.states]), labels=np.concatenate([a.labels, b.labels]),
+        source=np.concatenate([a.source, b.source]), config_index=np.concatenate([a.config_index, b_index]),
+        episode=np.concatenate([a.episode, b.episode]), step=np.concatenate([a.step, b.step]),
+        configs=configs, metadata=metadata,
+        policy_obs=None if a.policy_obs is None else np.concatenate([a.policy_obs, b.policy_obs]),
+    )

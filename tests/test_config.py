@@ -1,0 +1,87 @@
+"""params.yaml: profiles, validation and clear errors."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from paper_lib.agents import paper_hyperparameters
+from paper_lib.checkpoints import load_checkpoint
+from paper_lib.config import load_run_config, use_profile
+from paper_lib.train import train_run
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def params(tmp_path) -> Path:
+    path = tmp_path / "params.yaml"
+    shutil.copy(REPO / "params.yaml", path)
+    return path
+
+
+def test_committed_profile_is_valid_and_profiles_switch(params):
+    assert load_run_config(params).profile in ("cpu", "tiny", "paper")
+    use_profile("tiny", params)
+    cfg = load_run_config(params)
+    assert cfg.profile == "tiny" and cfg.results.name == "tiny"
+    use_profile("paper", params)
+    assert load_run_config(params).seeds == [0, 1, 2]
+
+
+def test_params_hyperparameters_match_the_packaged_paper_table():
+    hps = yaml.safe_load((REPO / "params.yaml").read_text())["hyperparameters"]
+    for env_id, hp in hps.items():
+        assert hp == paper_hyperparameters(env_id), env_id
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda p: p["run"].update(profile="huge"), "unknown profile 'huge'"),
+    (lambda p: p["run"].update(envs=["Hopper-v5"]), "unknown env 'Hopper-v5'"),
+    (lambda p: p["run"].update(methods=["bayes"]), "unknown method 'bayes'"),
+    (lambda p: p["run"].update(seeds=[]), "seeds must be a non-empty list"),
+    (lambda p: p["run"].update(n_id_states=0), "n_id_states must be a positive integer"),
+    (lambda p: p["run"].pop("eval_episodes"), "lacks"),
+])
+def test_bad_params_name_the_file_and_the_fix(params, edit, match):
+    data = yaml.safe_load(params.read_text())
+    edit(data)
+    params.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError, match=match) as err:
+        load_run_config(params)
+    assert str(params) in str(err.value)
+
+
+def test_unknown_profile_switch_fails_and_keeps_the_file(params):
+    before = params.read_text()
+    with pytest.raises(ValueError, match="unknown profile"):
+        use_profile("huge", params)
+    assert params.read_text() == before
+
+
+def test_checkpoint_trained_for_another_method_is_rejected(tmp_path):
+    out = train_run("CartPole-v1", "ensemble", 0, tmp_path / "ckpt", total_timesteps=128,
+                    agent_kwargs={"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}})
+    assert {p.name for p in out.iterdir()} == {"model.zip", "config.json", "training_curve.csv"}
+    assert load_checkpoint(out, "CartPole-v1", "ensemble", 0).config["method"] == "ensemble"
+    with pytest.raises(ValueError, match="trained with method='ensemble' but this stage expects 'masksembles'"):
+        load_checkpoint(out, "CartPole-v1", "masksembles", 0)
+    (out / "model.zip").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="cannot load"):
+        load_checkpoint(out, "CartPole-v1", "ensemble", 0)
+
+
+def test_a_failure_while_writing_leaves_no_half_checkpoint(tmp_path, monkeypatch):
+    import pandas as pd
+
+    def disk_full(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", disk_full)  # fails after model.zip was written
+    with pytest.raises(OSError, match="disk full"):
+        train_run("CartPole-v1", "ensemble", 0, tmp_path / "ckpt", total_timesteps=128,
+                  agent_kwargs={"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}})
+    assert list(tmp_path.iterdir()) == [], "neither the checkpoint nor its temporary folder remains"
