@@ -323,3 +323,16 @@ def test_masksembles_width_too_small_is_rejected():
 
     with pytest.raises(ValueError, match="width >= 10"):
         PPO(MemberActorCriticPolicy, make_vec_env("CartPole-v1", 4), policy_kwargs={"hidden_sizes": (8, 8)})
+
+
+@pytest.mark.parametrize("p", [0.05, 0.1, 0.5])
+def test_dropconnect_mask_drops_each_weight_with_probability_p(p):
+    from paper_lib.methods.layers import _dropconnect_mask
+
+    th.manual_seed(0)
+    mask = _dropconnect_mask((200, 1000), p, th.device("cpu"))
+    dropped = (mask == 0).float()
+    assert abs(dropped.mean().item() - p) < 0.005
+    assert th.allclose(mask[mask != 0], th.tensor(1 / (1 - p)))
+    # rows are independent draws: their drop rates spread like a binomial, not identical
+    assert dropped.mean(1).std().item() == pytest.approx((p * (1 - p) / 1000) ** 0.5, rel=0.25)

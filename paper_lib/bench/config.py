@@ -77,11 +77,12 @@ class BenchConfig:
         return int(paper_hyperparameters(env_id)["n_envs"])
 
     def hidden_sizes(self, env_id: str, method: str) -> list[int]:
-        """The MLP widths; the same for every method unless `paper_widths` (ignored for Atari's CNN)."""
+        """The MLP widths; the same for every method unless `paper_widths`. Empty for Atari: its
+        Nature CNN has the same sizes in every method already."""
         hp = paper_hyperparameters(env_id)
-        if self.paper_widths and method == "masksembles":
-            return list(hp.get("hidden_sizes_masksembles", hp["hidden_sizes"]))
-        return list(hp["hidden_sizes"])
+        if self.paper_widths and method == "masksembles" and "hidden_sizes_masksembles" in hp:
+            return list(hp["hidden_sizes_masksembles"])
+        return list(hp.get("hidden_sizes", []))
 
     def rollout_steps(self, env_id: str) -> int:
         return int(self.algo_kwargs(env_id)["n_steps"]) * self.n_envs(env_id)
