@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup reproduce test bench retrain-%
+.PHONY: setup reproduce test bench regenerate
 
 setup: $(STAMP)
 
@@ -26,3 +26,8 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m paper_lib.bench
+
+# Every table and figure again from the committed checkpoints (nothing is retrained).
+regenerate: $(STAMP)
+	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/dvc repro -f -s collect
+	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/dvc repro -f -s rewards ood uncertainty_over_time training_and_perturbations paper_vs_us

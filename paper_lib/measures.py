@@ -40,20 +40,19 @@ def entropy(logits: np.ndarray) -> np.ndarray:
 
 
 def policy_js(action_params: np.ndarray, discrete: bool) -> np.ndarray:
-    """Max pairwise Jensen-Shannon divergence (discrete) or L2 distance of means (continuous)."""
-    k = action_params.shape[0]
-    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
+    """Max pairwise Jensen-Shannon divergence (discrete) or L2 distance of means (continuous).
+
+    All k x k pairs at once; the diagonal is 0 and the matrix symmetric, so its max is the
+    max over distinct pairs.
+    """
     if discrete:
         probs = softmax(action_params, axis=-1)
-        per_pair = [_js(probs[i], probs[j]) for i, j in pairs]
+        p, q = probs[:, None], probs[None, :]
+        m = 0.5 * (p + q)
+        pairwise = 0.5 * _kl(p, m) + 0.5 * _kl(q, m)
     else:
-        per_pair = [np.linalg.norm(action_params[i] - action_params[j], axis=-1) for i, j in pairs]
-    return np.max(per_pair, axis=0)
-
-
-def _js(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    m = 0.5 * (p + q)
-    return 0.5 * _kl(p, m) + 0.5 * _kl(q, m)
+        pairwise = np.linalg.norm(action_params[:, None] - action_params[None, :], axis=-1)
+    return pairwise.max(axis=(0, 1))
 
 
 def _kl(p: np.ndarray, q: np.ndarray) -> np.ndarray:

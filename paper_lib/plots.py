@@ -18,20 +18,10 @@ import seaborn as sns
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from paper_lib.frames import require_columns
 from paper_lib.io import atomic_path
 
 PANEL_SIZE = (4.0, 3.2)  # inches per panel
-
-
-def _require_columns(df: pd.DataFrame, columns: list[str], where: str) -> None:
-    """Raise one ValueError naming every missing column (and the ones that exist)."""
-    if not isinstance(df, pd.DataFrame):
-        raise ValueError(f"{where}: expected a pandas DataFrame, got {type(df).__name__}.")
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise ValueError(f"{where}: missing column(s) {missing}; the frame has {list(df.columns)}.")
-    if df.empty:
-        raise ValueError(f"{where}: the DataFrame is empty; there is nothing to plot.")
 
 
 def _new_figure(n_panels: int = 1, sharey: bool = True, legend_width: float = 0.0) -> tuple[Figure, list]:
@@ -76,7 +66,7 @@ def roc_curves(df: pd.DataFrame) -> Figure:
     Expects columns fpr, tpr, method, measure, env, one row per ROC point (e.g.
     ``metrics.roc_points`` output with labels added). A grey diagonal marks chance.
     """
-    _require_columns(df, ["fpr", "tpr", "method", "measure", "env"], "roc_curves")
+    require_columns(df, ["fpr", "tpr", "method", "measure", "env"], "roc_curves")
     envs = list(pd.unique(df["env"]))
     fig, axes = _new_figure(len(envs), legend_width=1.6)
     for ax, env in zip(axes, envs):
@@ -97,7 +87,7 @@ def uncertainty_over_time(df: pd.DataFrame) -> Figure:
     Expects columns step, score, method, phase ("id" or "ood"); all ID steps must
     come before all OOD steps (the states are evaluated as one ID-then-OOD stream).
     """
-    _require_columns(df, ["step", "score", "method", "phase"], "uncertainty_over_time")
+    require_columns(df, ["step", "score", "method", "phase"], "uncertainty_over_time")
     phases = set(pd.unique(df["phase"]))
     if not phases <= {"id", "ood"} or len(phases) != 2:
         raise ValueError(
@@ -121,7 +111,7 @@ def training_curves(df: pd.DataFrame) -> Figure:
     Expects columns timesteps, reward, method, env, seed; seeds should log at the
     same timesteps (bin them first otherwise) so the mean is taken over seeds.
     """
-    _require_columns(df, ["timesteps", "reward", "method", "env", "seed"], "training_curves")
+    require_columns(df, ["timesteps", "reward", "method", "env", "seed"], "training_curves")
     envs = list(pd.unique(df["env"]))
     fig, axes = _new_figure(len(envs), sharey=False)  # reward scales differ per env
     for ax, env in zip(axes, envs):
@@ -139,7 +129,7 @@ def normalized_bars(df: pd.DataFrame) -> Figure:
     the method's mean ID uncertainty. Several rows per (perturbation, method), e.g.
     seeds, are averaged and shown with a ±1 std error bar. Dashed line: ratio 1.
     """
-    _require_columns(df, ["perturbation", "method", "ratio"], "normalized_bars")
+    require_columns(df, ["perturbation", "method", "ratio"], "normalized_bars")
     fig, (ax,) = _new_figure(1)
     fig.set_figwidth(max(PANEL_SIZE[0], 0.9 * df["perturbation"].nunique() * max(1, df["method"].nunique()) ** 0.5))
     sns.barplot(data=df, x="perturbation", y="ratio", hue="method", errorbar="sd", ax=ax,
@@ -156,7 +146,7 @@ def pareto_scatter(df: pd.DataFrame) -> Figure:
     Expects columns reward, auroc, method, is_pareto (bool). The Pareto set is the
     caller's: this function only draws it.
     """
-    _require_columns(df, ["reward", "auroc", "method", "is_pareto"], "pareto_scatter")
+    require_columns(df, ["reward", "auroc", "method", "is_pareto"], "pareto_scatter")
     if not pd.api.types.is_bool_dtype(df["is_pareto"]):
         raise ValueError(
             f"pareto_scatter: column 'is_pareto' must be boolean, got dtype {df['is_pareto'].dtype}; use .astype(bool)."

@@ -12,20 +12,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from paper_lib.frames import require_columns
 from paper_lib.io import write_text_atomic
 
 PLUS_MINUS = "\u00b1"  # "±"
-
-
-def _require_columns(df: pd.DataFrame, columns: list[str], where: str) -> None:
-    """Raise one ValueError naming every missing column (and the ones that exist)."""
-    if not isinstance(df, pd.DataFrame):
-        raise ValueError(f"{where}: expected a pandas DataFrame, got {type(df).__name__}.")
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise ValueError(f"{where}: missing column(s) {missing}; the frame has {list(df.columns)}.")
-    if df.empty:
-        raise ValueError(f"{where}: the DataFrame is empty; there is nothing to tabulate.")
 
 
 def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
@@ -150,7 +140,7 @@ def mean_std_values(df: pd.DataFrame, index: str, columns: str, value: str) -> p
     Returns a frame indexed by ``index`` with MultiIndex columns (stat, ``columns``),
     stat in {"mean", "std", "n"}; std is NaN where only one seed exists.
     """
-    _require_columns(df, [index, columns, value], "mean_std_values")
+    require_columns(df, [index, columns, value], "mean_std_values")
     vals = pd.to_numeric(df[value], errors="coerce")
     if vals.isna().any():
         bad = df.loc[vals.isna(), [index, columns, value]].head(3).to_dict("records")

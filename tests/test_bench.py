@@ -106,10 +106,24 @@ def test_build_model_matches_make_agent_where_widths_agree(method):
 
 def test_command_line():
     config, out = parse_args(["--quick", "--envs", "CartPole-v1", "--methods", "baseline", "ensemble",
-                              "--set", "n_steps=16", "--no-memory", "--out", "x"])
+                              "--set", "n_steps=16", "--out", "x"])
     assert (config.quick, config.n_states, config.memory, out) == (True, 256, False, "x")
+    assert parse_args(["--quick", "--memory", "--states", "8"])[0].memory is True
+    assert parse_args(["--states", "8"])[0].n_states == 8 and parse_args([])[0].memory is True
     assert config.algo_kwargs("CartPole-v1")["n_steps"] == 16  # --set wins over --quick
     with pytest.raises(ValueError, match="keep it in --methods"):
         BenchConfig(methods=("masksembles",))
     with pytest.raises(ValueError, match="unknown override"):
         BenchConfig(envs=("CartPole-v1",), overrides={"n_step": 1}).algo_kwargs("CartPole-v1")
+
+
+def test_child_peak_memory_is_its_own_not_the_parents():
+    """getrusage's ru_maxrss survives fork + exec: a child would report this process's 1.6 GB."""
+    import numpy as np
+
+    from paper_lib.bench.memory import measure_in_child
+
+    ballast = np.ones(200_000_000)  # 1.6 GB resident in the parent
+    config = BenchConfig(envs=("CartPole-v1",), methods=("baseline",), overrides=dict(TINY))
+    mb = measure_in_child(config, "CartPole-v1", "baseline", "train")
+    assert 0 < mb["floor_mb"] <= mb["peak_mb"] < ballast.nbytes / 2**20

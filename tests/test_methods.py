@@ -326,11 +326,11 @@ def test_masksembles_width_too_small_is_rejected():
 
 
 @pytest.mark.parametrize("p", [0.05, 0.1, 0.5])
-def test_dropconnect_mask_drops_each_weight_with_probability_p(p):
-    from paper_lib.methods.layers import _dropconnect_mask
+def test_keep_mask_drops_each_entry_with_probability_p(p):
+    from paper_lib.methods.layers import bernoulli_keep_mask
 
     th.manual_seed(0)
-    mask = _dropconnect_mask((200, 1000), p, th.device("cpu"))
+    mask = bernoulli_keep_mask((200, 1000), p, th.device("cpu"))
     dropped = (mask == 0).float()
     assert abs(dropped.mean().item() - p) < 0.005
     assert th.allclose(mask[mask != 0], th.tensor(1 / (1 - p)))

@@ -1,7 +1,7 @@
 """What uncertainty costs: every method side by side with plain SB3 PPO, same network sizes.
 
-    python -m paper_lib.bench                  # HalfCheetah-v5 + Seaquest, ~10-15 min on 2 cores
-    python -m paper_lib.bench --quick          # ~1-2 min, shorter rollouts and 256 states
+    python -m paper_lib.bench                  # HalfCheetah-v5 + Seaquest, ~10 min on 2 cores
+    python -m paper_lib.bench --quick          # ~1 min: shorter rollouts, 256 states, no memory
     python -m paper_lib.bench --envs HalfCheetah-v5 --methods baseline masksembles --out results/bench
 
 Measured in one run, per env and method (plain SB3 PPO is the method "baseline"):

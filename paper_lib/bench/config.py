@@ -11,9 +11,10 @@ from paper_lib.envs import is_atari
 from paper_lib.methods.networks import METHODS
 
 DEFAULT_ENVS = ("HalfCheetah-v5", "SeaquestNoFrameskip-v4")
-#: Measured env steps per method when --train-steps is not given: two (MuJoCo) or three
-#: (Atari) whole PPO iterations at the paper's settings, enough to average over an update.
-DEFAULT_TRAIN_STEPS = {"mujoco": 8192, "atari": 3072}
+#: Measured env steps per method when --train-steps is not given: three (MuJoCo) or four
+#: (Atari) whole PPO iterations at the paper's settings (~4 s each for plain PPO on
+#: HalfCheetah, 2 cores); more iterations buy less noise at a linear cost.
+DEFAULT_TRAIN_STEPS = {"mujoco": 12288, "atari": 4096}
 #: --quick shrinks the rollout only. Update cost per env step is n_epochs / batch_size
 #: gradient steps whatever n_steps is, so per-step ratios stay comparable to the full run.
 QUICK_N_STEPS = {"mujoco": 64, "atari": 32}
@@ -33,7 +34,7 @@ class BenchConfig:
     :param n_states: batch for the "score many states" timings (the issue's 4096)
     :param repeats: timing samples per inference measurement (the median is reported)
     :param large_budget_s: stop repeating the n_states timings after this many seconds
-        (at least one interleaved round always runs): an Atari ensemble needs ~20 s per call
+        (at least one interleaved round always runs): Atari members need ~10 s per 4096-state call
     :param paper_widths: use the paper's per-method widths (384 for Masksembles on
         HalfCheetah) instead of one width for every method
     """
@@ -103,6 +104,7 @@ class BenchConfig:
 
 
 def quick_config(**kwargs: Any) -> BenchConfig:
-    """The ~1 minute preset: short rollouts, 256 states, 3 repeats, small time budgets."""
-    preset: dict[str, Any] = dict(quick=True, n_states=256, repeats=3, large_budget_s=5.0)
+    """The ~1 minute preset: short rollouts, 256 states, 3 repeats, small time budgets, and no
+    memory children (20 fresh processes cost ~3 s of imports each: as long as all the rest)."""
+    preset: dict[str, Any] = dict(quick=True, n_states=256, repeats=3, large_budget_s=5.0, memory=False)
     return BenchConfig(**{**preset, **kwargs})

@@ -7,17 +7,19 @@ runs in its own child process, which measures
 
     floor = RSS once imports, the env and the input states exist (before the model is built)
     peak  = peak RSS after the phase (train: build + one PPO iteration; infer: build, then
-            predict on and score n_states states)
+            predict on and score n_states random observations: values do not change memory)
 
 and the benchmark reports the peak and the increase `peak - floor`, the model's own share.
-Imports leave a transient peak above the floor; on Linux the child resets the high-water
-mark at the floor (`echo 5 > /proc/self/clear_refs`), so a model smaller than that transient
-still shows. Where that is refused, the floor is the high-water mark itself, and an increase
-of 0 then means "below the import transient". Memory does not depend on CPU contention, so
-children run `memory_jobs` at a time.
+
+On Linux the peak is VmHWM from /proc/self/status, not getrusage's ru_maxrss: ru_maxrss
+survives fork + exec, so a child of a parent holding 800 MB of Atari models reports 800 MB
+whatever it does. Imports also leave a transient peak above the floor, so the child resets
+VmHWM at the floor (`echo 5 > /proc/self/clear_refs`); a model smaller than that transient
+still shows. Elsewhere it falls back to ru_maxrss (increases then read 0 below the import
+transient). Memory does not depend on CPU contention, so children run `memory_jobs` at a time.
 
 A child by hand (what the parent runs):
-    python -c "from paper_lib.bench.memory import child_main; child_main()" \
+    python -c "from paper_lib.bench.memory import child_main; child_main()" \\
         '{"env_id": "CartPole-v1", "method": "ensemble", "phase": "train", "config": {"envs": ["CartPole-v1"]}}'
 """
 
@@ -33,11 +35,9 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
-from stable_baselines3.common.base_class import BaseAlgorithm
 
 from paper_lib.bench.config import BenchConfig
-from paper_lib.bench.models import build_model, make_bench_env
+from paper_lib.bench.models import build_model, has_measures, make_bench_env
 from paper_lib.uncertainty import uncertainty
 
 PHASES = ("train", "infer")
@@ -45,19 +45,29 @@ PHASES = ("train", "infer")
 _CHILD = "from paper_lib.bench.memory import child_main; child_main()"
 
 
+def _status_mb(field: str) -> float | None:
+    """A memory field of /proc/self/status in MB (Linux), or None where there is none."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith(field + ":")) / 1024
+    except (OSError, StopIteration, ValueError):
+        return None
+
+
 def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux reports KiB
+    peak = _status_mb("VmHWM")
+    return peak if peak is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB
 
 
 def _floor_rss_mb() -> float:
-    """Current RSS with the high-water mark reset to it (Linux), else the high-water mark so far."""
+    """Current RSS, with the high-water mark reset to it (Linux); else the high-water mark so far."""
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
-        with open("/proc/self/status") as f:
-            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
-    except (OSError, StopIteration, ValueError):
+    except OSError:
         return _peak_rss_mb()
+    current = _status_mb("VmRSS")
+    return current if current is not None else _peak_rss_mb()
 
 
 def measure_in_this_process(spec: dict[str, Any]) -> dict[str, float]:
@@ -76,11 +86,6 @@ def measure_in_this_process(spec: dict[str, Any]) -> dict[str, float]:
         if has_measures(model, method):
             uncertainty(model.policy, states)
     return {"floor_mb": floor, "peak_mb": _peak_rss_mb()}
-
-
-def has_measures(model: BaseAlgorithm, method: str) -> bool:
-    """Member methods always have measures; a baseline only for discrete actions."""
-    return method != "baseline" or isinstance(model.action_space, spaces.Discrete)
 
 
 def measure_in_child(config: BenchConfig, env_id: str, method: str, phase: str) -> dict[str, float]:

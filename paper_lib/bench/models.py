@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -47,3 +48,8 @@ def build_model(config: BenchConfig, env_id: str, method: str, env: VecEnv | Non
 def random_actions(env: VecEnv) -> np.ndarray:
     """One random action per sub-env, as VecEnv.step expects them."""
     return np.stack([env.action_space.sample() for _ in range(env.num_envs)])
+
+
+def has_measures(model: PPO, method: str) -> bool:
+    """Whether `uncertainty` applies: member methods always; a baseline for discrete actions only."""
+    return method != "baseline" or isinstance(model.action_space, spaces.Discrete)

@@ -90,7 +90,10 @@ def _num(x: float) -> str:
 
 
 def _cell(row: Row) -> str:
-    text = f"{_num(row.value)} ({row.ratio_to_baseline:.2f}x)" if not math.isnan(row.ratio_to_baseline) else _num(row.value)
+    """'value (ratio x)' plus a mark where the row has a target."""
+    text = _num(row.value)
+    if not math.isnan(row.ratio_to_baseline):
+        text += f" ({row.ratio_to_baseline:.2f}x)"
     return text + {"yes": " ✓", "no": " ✗"}.get(row.meets_target, "")
 
 

@@ -16,14 +16,14 @@ from stable_baselines3 import PPO
 
 from paper_lib.bench import memory
 from paper_lib.bench.config import BenchConfig
-from paper_lib.bench.models import build_model, make_bench_env
+from paper_lib.bench.models import build_model, has_measures, make_bench_env
 from paper_lib.bench.report import ENV_ONLY, RATE_UNIT, Row, with_ratios, write_outputs
 from paper_lib.bench.timing import env_ceiling, interleaved_medians, train_throughput
 from paper_lib.uncertainty import uncertainty
 
 
 def _log(message: str) -> None:
-    print(f"[bench] {message}", file=sys.stderr, flush=True)
+    print(f"[bench {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
 
 
 def machine_line() -> str:
@@ -44,7 +44,7 @@ def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, di
     for method, model in models.items():
         small[method, "predict_b1"] = lambda m=model: m.predict(one, deterministic=True)
         large[method, f"predict_b{n}"] = lambda m=model: m.predict(states, deterministic=True)
-        if memory.has_measures(model, method):
+        if has_measures(model, method):
             small[method, "act_uncertainty_b1"] = lambda m=model: (m.predict(one, deterministic=True),
                                                                    uncertainty(m.policy, one))
             large[method, f"uncertainty_b{n}"] = lambda m=model: uncertainty(m.policy, states)
@@ -56,8 +56,10 @@ def bench_env(config: BenchConfig, env_id: str) -> list[Row]:
     rows: list[Row] = []
 
     def add(method: str, measurement: str, value: float, unit: str, samples: int) -> None:
-        settings = "random actions, " + config.settings(env_id, "baseline") if method == ENV_ONLY else \
-            config.settings(env_id, method)
+        if method == ENV_ONLY:
+            settings = "random actions, " + config.settings(env_id, "baseline")
+        else:
+            settings = config.settings(env_id, method)
         rows.append(Row(env_id, method, measurement, value, unit, samples, settings))
 
     iterations, rollout = config.iterations(env_id), config.rollout_steps(env_id)

@@ -29,11 +29,11 @@ def _orthogonal_(weight: th.Tensor, gain: float) -> None:
             nn.init.orthogonal_(member_weight, gain=gain)
 
 
-def _dropconnect_mask(shape: tuple[int, ...], p: float, device: th.device) -> th.Tensor:
-    """Bernoulli(1-p) keep-mask on weights, rescaled by 1/(1-p) like inverted dropout.
+def bernoulli_keep_mask(shape: tuple[int, ...], p: float, device: th.device) -> th.Tensor:
+    """Bernoulli(1-p) keep-mask, rescaled by 1/(1-p) (inverted dropout), for weights or activations.
 
     A fresh mask per member per forward pass means k * n_weights Bernoulli draws, which
-    dominate the layer's cost when drawn one by one. Instead, draw M ~ Poisson(n * lam)
+    dominate a DropConnect layer's cost when drawn one by one. Instead, draw M ~ Poisson(n * lam)
     positions uniformly (with replacement) and zero them, lam = -ln(1 - p): by Poisson
     splitting each weight is hit an independent Poisson(lam) number of times, so it is
     dropped independently with probability 1 - exp(-lam) = p, exactly. For p = 0.1 that is
@@ -49,8 +49,10 @@ def _dropconnect_mask(shape: tuple[int, ...], p: float, device: th.device) -> th
 class MemberLinear(nn.Module):
     """Linear layer on (k, n, d_in) -> (k, n, d_out).
 
-    shared:      one weight matrix for all members (Masksembles, MC Dropout).
-    ensemble:    k independent weight matrices, run as one batched matmul.
+    shared:      one weight matrix for all members (Masksembles, MC Dropout), (1, d_out, d_in).
+    ensemble:    k independent weight matrices, run as one batched matmul; stored (k, d_in, d_out)
+                 so that bmm needs no transpose (a transposed weight's gradient would be copied
+                 into place at every step).
     dropconnect: one weight matrix, but every member (sample) draws its own random weight
                  mask at every forward pass, in training and at inference (MC DropConnect).
     """
@@ -59,22 +61,26 @@ class MemberLinear(nn.Module):
         super().__init__()
         if mode not in WEIGHT_MODES:
             raise ValueError(f"unknown weight mode {mode!r}; use one of {WEIGHT_MODES}")
-        self.k, self.mode, self.p = k, mode, p
-        n_weights = k if mode == ENSEMBLE else 1
-        self.weight = nn.Parameter(th.empty(n_weights, d_out, d_in))
-        self.bias = nn.Parameter(th.zeros(n_weights, 1, d_out))
-        _orthogonal_(self.weight.data, gain)
+        self.k, self.mode, self.p, self.d_in, self.d_out = k, mode, p, d_in, d_out
+        if mode == ENSEMBLE:
+            self.weight = nn.Parameter(th.empty(k, d_in, d_out))
+            self.bias = nn.Parameter(th.zeros(k, 1, d_out))
+            _orthogonal_(self.weight.data.transpose(1, 2), gain)
+        else:  # a leading member axis of 1, so every mode's state dict has the same rank
+            self.weight = nn.Parameter(th.empty(1, d_out, d_in))
+            self.bias = nn.Parameter(th.zeros(1, 1, d_out))
+            _orthogonal_(self.weight.data, gain)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        if self.mode == SHARED:
-            return F.linear(x, self.weight[0], self.bias[0, 0])
-        weight = self.weight
-        if self.mode == DROPCONNECT:
-            weight = weight * _dropconnect_mask((x.shape[0], *weight.shape[1:]), self.p, x.device)
-        return th.baddbmm(self.bias, x, weight.transpose(1, 2))
+        if self.mode == SHARED:  # .view, not [0]: indexing's backward builds and fills a full zero tensor
+            return F.linear(x, self.weight.view(self.d_out, self.d_in), self.bias.view(self.d_out))
+        if self.mode == ENSEMBLE:
+            return th.baddbmm(self.bias, x, self.weight)
+        masked = self.weight * bernoulli_keep_mask((x.shape[0], self.d_out, self.d_in), self.p, x.device)
+        return th.baddbmm(self.bias, x, masked.transpose(1, 2))
 
     def extra_repr(self) -> str:
-        return f"d_in={self.weight.shape[2]}, d_out={self.weight.shape[1]}, k={self.k}, mode={self.mode}, p={self.p}"
+        return f"d_in={self.d_in}, d_out={self.d_out}, k={self.k}, mode={self.mode}, p={self.p}"
 
 
 class MemberConv2d(nn.Module):
@@ -97,11 +103,11 @@ class MemberConv2d(nn.Module):
     def forward(self, x: th.Tensor) -> th.Tensor:
         k, n = x.shape[:2]
         if self.mode == SHARED:
-            y = F.conv2d(x.reshape(k * n, *x.shape[2:]), self.weight[0], self.bias[0], stride=self.stride)
+            y = F.conv2d(x.reshape(k * n, *x.shape[2:]), self.weight.squeeze(0), self.bias.squeeze(0), stride=self.stride)
             return y.view(k, n, *y.shape[1:])
         weight, bias = self.weight, self.bias
         if self.mode == DROPCONNECT:
-            weight = weight * _dropconnect_mask((k, *weight.shape[1:]), self.p, x.device)
+            weight = weight * bernoulli_keep_mask((k, *weight.shape[1:]), self.p, x.device)
             bias = bias.expand(k, -1)
         grouped = x.transpose(0, 1).reshape(n, k * x.shape[2], *x.shape[3:])
         y = F.conv2d(grouped, weight.reshape(-1, *weight.shape[2:]), bias.reshape(-1), stride=self.stride, groups=k)
@@ -134,7 +140,8 @@ class MCDropout(nn.Module):
         self.p = p
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        return F.dropout(x, self.p, training=True)
+        # the same exact Bernoulli draw as DropConnect's, ~1.6x cheaper than F.dropout here
+        return x * bernoulli_keep_mask(x.shape, self.p, x.device)
 
     def extra_repr(self) -> str:
         return f"p={self.p}"
