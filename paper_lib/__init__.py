@@ -12,10 +12,10 @@ from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
 from paper_lib.methods.groups import MemberGroupVecEnv
 from paper_lib.methods.networks import MEMBER_METHODS, METHODS
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
-from paper_lib.uncertainty import MemberOutputs, member_outputs, uncertainty
+from paper_lib.uncertainty import MemberOutputs, act_with_uncertainty, member_outputs, uncertainty
 
 __all__ = [
     "ALGORITHMS", "ASSIGNMENTS", "ATARI_ENVS", "INFERENCE_MODES", "MEMBER_METHODS", "METHODS", "MUJOCO_ENVS",
-    "MemberActorCriticPolicy", "MemberGroupVecEnv", "MemberOrderedRolloutBuffer", "MemberOutputs", "make_agent",
+    "MemberActorCriticPolicy", "MemberGroupVecEnv", "MemberOrderedRolloutBuffer", "MemberOutputs", "act_with_uncertainty", "make_agent",
     "make_env", "member_outputs", "paper_hyperparameters", "uncertainty",
 ]

@@ -11,7 +11,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 
 from paper_lib import measures
 from paper_lib.methods.networks import to_members
-from paper_lib.methods.policy import MemberActorCriticPolicy
+from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions
 
 
 @dataclass
@@ -109,3 +109,26 @@ def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
     if not policy.share_features_extractor:
         features = features[0]
     return policy.mlp_extractor.forward_actor(features)
+
+
+def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarray, deterministic: bool = True
+                         ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Actions (combined as `predict` would) and every measure, from one batched pass over the members.
+
+    The deployment call: an agent that acts and says how unsure it is, at the cost of one
+    forward pass instead of `predict` plus `uncertainty` (two passes).
+    """
+    if not isinstance(policy, MemberActorCriticPolicy):
+        raise ValueError("act_with_uncertainty needs a member policy; a baseline has no member-based uncertainty")
+    if policy.training:
+        policy.set_training_mode(False)
+    tensor, vectorized = policy.obs_to_tensor(observation)
+    with th.no_grad():
+        pi, vf = policy.member_outputs_from_tensor(tensor)
+        actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic).cpu().numpy()
+    actions = actions.reshape((-1, *policy.action_space.shape))
+    if isinstance(policy.action_space, spaces.Box):
+        actions = np.clip(actions, policy.action_space.low, policy.action_space.high)
+    discrete = isinstance(policy.action_space, spaces.Discrete)
+    scores = measures.all_measures(vf.cpu().numpy(), pi.cpu().numpy(), discrete)
+    return (actions if vectorized else actions[0]), scores

@@ -336,3 +336,17 @@ def test_keep_mask_drops_each_entry_with_probability_p(p):
     assert th.allclose(mask[mask != 0], th.tensor(1 / (1 - p)))
     # rows are independent draws: their drop rates spread like a binomial, not identical
     assert dropped.mean(1).std().item() == pytest.approx((p * (1 - p) / 1000) ** 0.5, rel=0.25)
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "HalfCheetah-v5"])
+def test_act_with_uncertainty_equals_predict_plus_uncertainty(env_id):
+    from paper_lib.uncertainty import act_with_uncertainty
+
+    model = tiny_agent("ensemble", env_id)
+    obs = model.env.reset()
+    actions, scores = act_with_uncertainty(model.policy, obs, deterministic=True)
+    np.testing.assert_array_equal(actions, model.predict(obs, deterministic=True)[0])
+    for name, value in uncertainty(model.policy, obs).items():
+        np.testing.assert_allclose(scores[name], value, rtol=1e-6)
+    single, _ = act_with_uncertainty(model.policy, obs[0], deterministic=True)
+    np.testing.assert_array_equal(single, model.predict(obs[0], deterministic=True)[0])
