@@ -19,6 +19,7 @@ from paper_lib.bench.config import BenchConfig
 from paper_lib.bench.models import build_model, has_measures, make_bench_env
 from paper_lib.bench.report import ENV_ONLY, RATE_UNIT, Row, with_ratios, write_outputs
 from paper_lib.bench.timing import env_ceiling, interleaved_medians, train_throughput
+from paper_lib.methods.policy import MemberActorCriticPolicy
 from paper_lib.uncertainty import act_with_uncertainty, uncertainty
 
 
@@ -45,7 +46,11 @@ def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, di
         small[method, "predict_b1"] = lambda m=model: m.predict(one, deterministic=True)
         large[method, f"predict_b{n}"] = lambda m=model: m.predict(states, deterministic=True)
         if has_measures(model, method):
-            small[method, "act_uncertainty_b1"] = lambda m=model: act_with_uncertainty(m.policy, one)
+            if isinstance(model.policy, MemberActorCriticPolicy):  # one pass for the action and the measures
+                small[method, "act_uncertainty_b1"] = lambda m=model: act_with_uncertainty(m.policy, one)
+            else:  # a discrete baseline's max_prob / entropy: predict, then score
+                small[method, "act_uncertainty_b1"] = lambda m=model: (m.predict(one, deterministic=True),
+                                                                       uncertainty(m.policy, one))
             large[method, f"uncertainty_b{n}"] = lambda m=model: uncertainty(m.policy, states)
     return small, large
 
