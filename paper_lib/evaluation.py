@@ -64,7 +64,3 @@ def summarize_rewards(df: pd.DataFrame) -> pd.DataFrame:
     out.loc[single_seed, "std"] = out.loc[single_seed, "episode_std"]
     out["std_over"] = np.where(single_seed, "episodes", "seeds")
     return out.drop(columns="episode_std")
-
-
-def action_mode_label(deterministic: bool) -> str:
-    return "deterministic" if deterministic else "sampled"

@@ -19,7 +19,6 @@ from paper_lib.ood.collect import noise_ood_states, score_dataset
 from paper_lib.ood.datasets import StateDataset
 from paper_lib.uncertainty import policy_features
 
-DETECTORS = ("mahalanobis_obs", "knn_obs", "mahalanobis_features", "knn_features")
 
 
 @dataclass
@@ -31,15 +30,19 @@ class RunScores:
 
 def score_run(checkpoint: Checkpoint, dataset: StateDataset, rng: np.random.Generator, n_bootstrap: int,
               noise_magnitude: float = 2.0) -> RunScores:
-    """All measures and detectors on the physics (or game-state) OOD set and on the noise OOD set."""
+    """All measures and detectors on the physics (or game-state) OOD set and on the noise OOD set.
+
+    The held-apart ID states are scored once and serve as the ID side of both OOD sets.
+    """
     id_data, ood_data = dataset.id_only(), dataset.ood_only()
     fit_idx, eval_idx = split_fit_eval(len(id_data), rng)
     id_fit, id_eval = id_data.subset(_mask(len(id_data), fit_idx)), id_data.subset(_mask(len(id_data), eval_idx))
     noise = noise_ood_states(id_eval, rng, magnitude=noise_magnitude)
     detectors = _fit_detectors(checkpoint, id_fit)
+    id_scored = _score(checkpoint, id_eval, detectors)
     frames, metric_rows, rocs = [], [], []
     for ood_set, ood in (("perturbed", ood_data), ("noise", noise)):
-        scored = _score(checkpoint, id_eval, ood, detectors).assign(ood_set=ood_set)
+        scored = pd.concat([id_scored, _score(checkpoint, ood, detectors)], ignore_index=True).assign(ood_set=ood_set)
         frames.append(scored)
         columns = [c for c in scored.columns if c not in _META]
         pairs = {c: (scored.loc[scored.label == 0, c].to_numpy(), scored.loc[scored.label == 1, c].to_numpy())
@@ -61,34 +64,29 @@ def _mask(n: int, idx: np.ndarray) -> np.ndarray:
 
 
 def _policy_obs(data: StateDataset) -> np.ndarray:
-    return data.policy_obs if getattr(data, "policy_obs", None) is not None else data.states
+    return data.policy_obs if data.policy_obs is not None else data.states
+
+
+def _detector_inputs(checkpoint: Checkpoint, data: StateDataset) -> dict[str, np.ndarray]:
+    """What each member-free detector reads: observations (as the policy sees them) or policy features."""
+    obs = _policy_obs(data)
+    feats = policy_features(checkpoint.model.policy, obs)
+    return {"knn_obs": obs.reshape(len(obs), -1).astype(np.float32), "mahalanobis_obs": obs,
+            "mahalanobis_features": feats, "knn_features": feats}
 
 
 def _fit_detectors(checkpoint: Checkpoint, id_fit: StateDataset) -> dict:
-    policy = checkpoint.model.policy
-    obs = _policy_obs(id_fit)
-    image = obs.ndim > 2
-    # Mahalanobis on raw pixels needs a (84*84*4)^2 covariance: kNN only for images.
-    fitted = {"knn_obs": KNNDetector().fit(obs.reshape(len(obs), -1).astype(np.float32))}
-    if not image:
-        fitted["mahalanobis_obs"] = MahalanobisDetector().fit(obs)
-    feats = policy_features(policy, obs)
-    fitted["mahalanobis_features"] = MahalanobisDetector().fit(feats)
-    fitted["knn_features"] = KNNDetector().fit(feats)
-    return fitted
+    inputs = _detector_inputs(checkpoint, id_fit)
+    detectors = {"knn_obs": KNNDetector(), "mahalanobis_features": MahalanobisDetector(),
+                 "knn_features": KNNDetector()}
+    if inputs["mahalanobis_obs"].ndim == 2:  # on raw pixels it would need a (84*84*4)^2 covariance
+        detectors["mahalanobis_obs"] = MahalanobisDetector()
+    return {name: det.fit(inputs[name]) for name, det in detectors.items()}
 
 
-def _score(checkpoint: Checkpoint, id_eval: StateDataset, ood: StateDataset, detectors: dict) -> pd.DataFrame:
-    policy = checkpoint.model.policy
-    parts = []
-    for data in (id_eval, ood):
-        scored = score_dataset(checkpoint.model, data)
-        obs = _policy_obs(data)
-        feats = policy_features(policy, obs)
-        for name, det in detectors.items():
-            x = feats if name.endswith("features") else obs.reshape(len(obs), -1).astype(np.float32)
-            if name == "mahalanobis_obs":
-                x = obs
-            scored[name] = det.score(x)
-        parts.append(scored)
-    return pd.concat(parts, ignore_index=True)
+def _score(checkpoint: Checkpoint, data: StateDataset, detectors: dict) -> pd.DataFrame:
+    scored = score_dataset(checkpoint.model, data)
+    inputs = _detector_inputs(checkpoint, data)
+    for name, det in detectors.items():
+        scored[name] = det.score(inputs[name])
+    return scored

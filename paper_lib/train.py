@@ -22,7 +22,6 @@ import numpy as np
 import pandas as pd
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.agents import make_agent
 from paper_lib.provenance import machine, package_versions
@@ -51,14 +50,6 @@ class TrainingCurve(BaseCallback):
         })
 
 
-def find_vecnormalize(env) -> VecNormalize | None:
-    while env is not None:
-        if isinstance(env, VecNormalize):
-            return env
-        env = getattr(env, "venv", None)
-    return None
-
-
 def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: str = "ppo",
               total_timesteps: int | None = None, agent_kwargs: dict[str, Any] | None = None,
               torch_threads: int = 1, progress_bar: bool = False) -> Path:
@@ -78,7 +69,7 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
     tmp.chmod(0o755)
     try:
         model.save(tmp / "model.zip")
-        normalizer = find_vecnormalize(model.get_env())
+        normalizer = model.get_vec_normalize_env()
         if normalizer is not None:
             normalizer.save(str(tmp / "vecnormalize.pkl"))
         pd.DataFrame(curve.rows).to_csv(tmp / "training_curve.csv", index=False)

@@ -85,3 +85,15 @@ def test_a_failure_while_writing_leaves_no_half_checkpoint(tmp_path, monkeypatch
         train_run("CartPole-v1", "ensemble", 0, tmp_path / "ckpt", total_timesteps=128,
                   agent_kwargs={"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}})
     assert list(tmp_path.iterdir()) == [], "neither the checkpoint nor its temporary folder remains"
+
+
+def test_normalized_run_saves_and_reloads_its_observation_statistics(tmp_path):
+    out = train_run("Walker2d-v5", "masksembles", 0, tmp_path / "ckpt", total_timesteps=256,
+                    agent_kwargs={"overrides": {"n_steps": 32, "batch_size": 32, "n_epochs": 1}})
+    assert (out / "vecnormalize.pkl").is_file()
+    ckpt = load_checkpoint(out, "Walker2d-v5", "masksembles", 0)
+    env = ckpt.env(1, seed=0)
+    assert env.obs_rms.count > 256 and not env.training, "training statistics, frozen for evaluation"
+    (out / "vecnormalize.pkl").unlink()
+    with pytest.raises(FileNotFoundError, match="vecnormalize.pkl is missing"):
+        load_checkpoint(out, "Walker2d-v5", "masksembles", 0)
