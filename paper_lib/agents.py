@@ -12,6 +12,7 @@ from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
 
 from paper_lib.envs import is_atari, make_env
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
@@ -30,6 +31,45 @@ ALGO_KEYS = {
 }
 
 
+#: Policy settings a hyperparameter table may give (SB3 `policy_kwargs`, MLP envs only).
+ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
+POLICY_KEYS = ("activation_fn", "log_std_init", "ortho_init")
+MEMBER_KEYS = ("n_members", "dropout_p", "masksembles_scale")
+
+
+def policy_settings(hp: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """The table's `policy` entry as SB3 policy_kwargs (activation names -> classes).
+
+    The paper's MuJoCo numbers are rl-baselines3-zoo's tuned entries, which come with these
+    settings (log_std_init=-2, ortho_init=False, ReLU for HalfCheetah and Swimmer); member
+    policies honour them exactly as `MlpPolicy` does.
+    """
+    raw = dict(hp.get("policy") or {})
+    unknown = sorted(set(raw) - set(POLICY_KEYS))
+    if unknown:
+        raise ValueError(f"hyperparameters for {env_id}: unknown policy setting(s) {unknown}; known: {list(POLICY_KEYS)}")
+    if "activation_fn" in raw:
+        if raw["activation_fn"] not in ACTIVATIONS:
+            raise ValueError(f"hyperparameters for {env_id}: activation_fn={raw['activation_fn']!r}; "
+                             f"use one of {sorted(ACTIVATIONS)}")
+        raw["activation_fn"] = ACTIVATIONS[raw["activation_fn"]]
+    return raw
+
+
+def member_settings(hp: dict[str, Any], env_id: str, **explicit: Any) -> dict[str, Any]:
+    """k, dropout p and Masksembles scale: an explicit argument wins over the table's `members`."""
+    table = dict(hp.get("members") or {})
+    unknown = sorted(set(table) - set(MEMBER_KEYS))
+    if unknown:
+        raise ValueError(f"hyperparameters for {env_id}: unknown member setting(s) {unknown}; known: {list(MEMBER_KEYS)}")
+    resolved = {key: explicit[key] if explicit.get(key) is not None else table.get(key) for key in MEMBER_KEYS}
+    missing = [key for key, value in resolved.items() if value is None]
+    if missing:
+        raise ValueError(f"hyperparameters for {env_id} lack members.{missing}; add e.g. "
+                         "`members: {n_members: 4, dropout_p: 0.1, masksembles_scale: 2.0}` or pass them to make_agent")
+    return resolved
+
+
 def paper_hyperparameters(env_id: str) -> dict[str, Any]:
     """The paper's settings for `env_id` (a fresh copy, safe to edit)."""
     table = yaml.safe_load(resources.files("paper_lib.data").joinpath("paper_hyperparameters.yaml").read_text())
@@ -45,11 +85,11 @@ def make_agent(
     env_id: str,
     seed: int = 0,
     *,
-    n_members: int = 4,
+    n_members: int | None = None,
     assignment: str = "shared",
     inference: str = "vote",
-    dropout_p: float = 0.1,
-    masksembles_scale: float = 2.0,
+    dropout_p: float | None = None,
+    masksembles_scale: float | None = None,
     n_envs: int | None = None,
     overrides: dict[str, Any] | None = None,
     hyperparameters: dict[str, Any] | None = None,
@@ -74,6 +114,9 @@ def make_agent(
     if inference not in INFERENCE_MODES:
         raise ValueError(f"unknown inference mode {inference!r}; use one of {INFERENCE_MODES}")
     hp = paper_hyperparameters(env_id) if hyperparameters is None else copy.deepcopy(hyperparameters)
+    members = member_settings(hp, env_id, n_members=n_members, dropout_p=dropout_p, masksembles_scale=masksembles_scale)
+    n_members, dropout_p, masksembles_scale = members["n_members"], members["dropout_p"], members["masksembles_scale"]
+    mlp_settings = {} if is_atari(env_id) else policy_settings(hp, env_id)
     algo_kwargs = {**hp["algo"], **(overrides or {})}
     unknown = set(overrides or {}) - set(hp["algo"])
     if unknown:
@@ -94,6 +137,7 @@ def make_agent(
     config = dict(algo=algo, method=method, env_id=env_id, seed=seed, n_envs=n_envs, n_members=n_members,
                   assignment=assignment, inference=inference, dropout_p=dropout_p,
                   masksembles_scale=masksembles_scale, hidden_sizes=hidden, normalize_obs=hp["normalize_obs"],
+                  policy=dict(hp.get("policy") or {}) if mlp_settings else {},
                   algo_kwargs=dict(algo_kwargs), linear_lr_decay=bool(hp.get("linear_lr_decay", False)),
                   total_timesteps=hp.get("total_timesteps"))
 
@@ -106,14 +150,15 @@ def make_agent(
 
     if method == "baseline":
         policy: Any = "CnnPolicy" if is_atari(env_id) else "MlpPolicy"
-        policy_kwargs: dict[str, Any] = {} if is_atari(env_id) else {"net_arch": {"pi": hidden, "vf": hidden}}
+        policy_kwargs: dict[str, Any] = {} if is_atari(env_id) else {"net_arch": {"pi": hidden, "vf": hidden},
+                                                                      **mlp_settings}
     else:
         env = MemberGroupVecEnv(env, n_members)
         policy = MemberActorCriticPolicy
         policy_kwargs = dict(method=method, n_members=n_members, dropout_p=dropout_p,
                              masksembles_scale=masksembles_scale, member_seed=seed, inference=inference)
         if not is_atari(env_id):
-            policy_kwargs["hidden_sizes"] = tuple(hidden)
+            policy_kwargs.update(hidden_sizes=tuple(hidden), **mlp_settings)
         if assignment == "own":
             algo_kwargs["rollout_buffer_class"] = MemberOrderedRolloutBuffer
             algo_kwargs["rollout_buffer_kwargs"] = {"n_members": n_members}

@@ -2,15 +2,28 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
+import tempfile
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 from stable_baselines3.common.env_util import make_atari_env, make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecNormalize
 
 MUJOCO_ENVS = ("HalfCheetah-v5", "Ant-v5", "Walker2d-v5", "Swimmer-v5")
 ATARI_ENVS = ("SeaquestNoFrameskip-v4", "MsPacmanNoFrameskip-v4", "BerzerkNoFrameskip-v4", "SpaceInvadersNoFrameskip-v4")
 N_STACK = 4
+
+
+#: Model files written by paper_lib stay on disk: gym.make(env.spec) and vec-envs re-read the path.
+MODEL_CACHE = Path(tempfile.gettempdir()) / "paper_lib_mujoco_models"
+#: Gymnasium's model file of each MuJoCo env.
+MUJOCO_XML = {"HalfCheetah-v5": "half_cheetah.xml", "Ant-v5": "ant.xml", "Walker2d-v5": "walker2d_v5.xml",
+              "Swimmer-v5": "swimmer.xml"}
 
 
 def is_atari(env_id: str) -> bool:
@@ -24,6 +37,73 @@ def register_atari() -> None:
     gym.register_envs(ale_py)
 
 
+def gymnasium_asset(xml: str) -> str:
+    """Absolute path of one of Gymnasium's MuJoCo model files."""
+    return os.path.join(os.path.dirname(gym.__file__), "envs", "mujoco", "assets", xml)
+
+
+def replace_total_mass_by_density(spec: mujoco.MjSpec) -> None:
+    """Replace the deprecated ``settotalmass`` by the geom densities that give the same masses.
+
+    half_cheetah.xml rescales all masses to 14 kg, an attribute MuJoCo 4 deprecates (and warns
+    about at every env creation). Scaling the densities instead gives the same compiled masses
+    and inertias (to the 7 significant digits `to_xml` keeps), and lets a perturbed, longer
+    part gain mass with its volume instead of shrinking every other part to keep 14 kg. It must
+    run before any geometry edit.
+    """
+    total = spec.compiler.settotalmass
+    if total <= 0:
+        return
+    spec.compiler.settotalmass = -1
+    raw = spec.compile().body_subtreemass[0]
+    for geom in spec.geoms:
+        geom.density *= total / raw
+
+
+def model_spec(env_id: str) -> mujoco.MjSpec:
+    """The env's model as an editable MjSpec, free of deprecated attributes."""
+    spec = mujoco.MjSpec.from_file(gymnasium_asset(MUJOCO_XML[env_id]))
+    replace_total_mass_by_density(spec)
+    return spec
+
+
+def write_model_xml(spec: mujoco.MjSpec) -> str:
+    """Write a model once under a content-hash name (atomically) and return its absolute path."""
+    spec.compile()
+    xml = spec.to_xml()
+    MODEL_CACHE.mkdir(parents=True, exist_ok=True)
+    path = MODEL_CACHE / f"{hashlib.sha256(xml.encode()).hexdigest()[:20]}.xml"
+    if not path.exists():
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(xml)
+        os.replace(tmp, path)
+    return str(path.resolve())
+
+
+@cache
+def _default_model_file(env_id: str) -> str | None:
+    spec = mujoco.MjSpec.from_file(gymnasium_asset(MUJOCO_XML[env_id]))
+    if spec.compiler.settotalmass <= 0:
+        return None  # Gymnasium's own file is fine
+    return write_model_xml(model_spec(env_id))
+
+
+def default_env_kwargs(env_id: str) -> dict[str, Any]:
+    """gym.make kwargs every env of `env_id` gets: HalfCheetah loads its model without settotalmass."""
+    if env_id not in MUJOCO_XML:
+        return {}
+    model_file = _default_model_file(env_id)
+    if model_file is None or not Path(model_file).is_file():
+        _default_model_file.cache_clear()
+        model_file = _default_model_file(env_id)
+    return {} if model_file is None else {"xml_file": model_file}
+
+
+def make_single_env(env_id: str, **gym_kwargs: Any) -> gym.Env:
+    """gym.make with paper_lib's model for MuJoCo envs (see `default_env_kwargs`)."""
+    return gym.make(env_id, **{**default_env_kwargs(env_id), **gym_kwargs})
+
+
 def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
              env_kwargs: dict[str, Any] | None = None) -> VecEnv:
     """The vectorized env an agent trains in: Atari gets AtariWrapper + 4 stacked frames."""
@@ -32,7 +112,8 @@ def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
         venv: VecEnv = VecFrameStack(make_atari_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
                                                     env_kwargs=env_kwargs), N_STACK)
     else:
-        venv = make_vec_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv, env_kwargs=env_kwargs)
+        venv = make_vec_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
+                            env_kwargs={**default_env_kwargs(env_id), **(env_kwargs or {})})
     if normalize_obs:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv

@@ -75,3 +75,81 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any, indent: int = 2) -
     """Write ``obj`` as JSON (sorted keys, so equal inputs give equal bytes) atomically."""
     text = json.dumps(obj, indent=indent, sort_keys=True) + "\n"
     return write_text_atomic(path, text)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    result = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange)
+    return result == 0
+
+
+def _old_copy(target: Path) -> Path:
+    return target.with_name(f".{target.name}.old")
+
+
+def recover_dir(path: str | os.PathLike[str]) -> None:
+    """Undo a swap that a kill interrupted: put the complete old folder back if the target is missing.
+
+    Only needed where the file system cannot exchange two paths atomically (see `atomic_dir`).
+    """
+    target = Path(path)
+    old = _old_copy(target)
+    if not target.exists() and old.is_dir():
+        os.rename(old, target)
+
+
+def remove_stale_temps(path: str | os.PathLike[str]) -> list[Path]:
+    """Delete temporary siblings (`.<name>.*`) that a killed writer of ``path`` left behind.
+
+    Call it before writing ``path`` again, from the one process that writes it.
+    """
+    import shutil
+
+    target = Path(path)
+    recover_dir(target)
+    stale = sorted(target.parent.glob(f".{target.name}.*")) if target.parent.is_dir() else []
+    for entry in stale:
+        if entry.name.endswith(".resume"):  # resume points are not temporary
+            continue
+        shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+    return stale
+
+
+@contextmanager
+def atomic_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; swap it in for ``path`` only if the block succeeds.
+
+    At every instant the complete old folder or the complete new one is at ``path``: the two
+    are exchanged in one atomic rename (Linux), and the old one is deleted afterwards. Where
+    the exchange is unsupported, the old folder is renamed to `.<name>.old` first and
+    `recover_dir` puts it back if a kill lands between the two renames.
+    """
+    import shutil
+
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(target)
+    tmp = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp"))
+    os.chmod(tmp, 0o777 & ~_UMASK)
+    try:
+        yield tmp
+        if not target.exists():
+            os.rename(tmp, target)
+        elif _exchange(tmp, target):
+            shutil.rmtree(tmp)  # now holds the old folder
+        else:
+            old = _old_copy(target)
+            os.rename(target, old)
+            os.rename(tmp, target)
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

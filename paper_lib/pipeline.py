@@ -1,5 +1,6 @@
 """Pipeline stage commands that are not notebooks (DVC calls them; see dvc.yaml).
 
+    python -m paper_lib.pipeline train HalfCheetah-v5 masksembles 0     # resumes from its last resume point
     python -m paper_lib.pipeline collect HalfCheetah-v5 masksembles 0
 """
 
@@ -15,6 +16,22 @@ from paper_lib.config import RunConfig, load_run_config
 from paper_lib.envs import is_atari
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import concat
+
+
+def train_stage(cfg: RunConfig, env_id: str, method: str, seed: int, **train_kwargs) -> Path:
+    """Train one run of the active profile into its checkpoint folder (what notebook 1 runs).
+
+    Uses params.yaml's hyperparameters, overrides, budget and inference mode, and resumes from
+    the run's last resume point when one exists.
+    """
+    from paper_lib.train import train_run
+
+    if env_id not in cfg.hyperparameters:
+        raise ValueError(f"params.yaml has no hyperparameters for {env_id!r}; known: {sorted(cfg.hyperparameters)}")
+    agent_kwargs = {"hyperparameters": cfg.hyperparameters[env_id], "overrides": cfg.overrides or None,
+                    "inference": cfg.inference}
+    return train_run(env_id, method, seed, cfg.checkpoint_dir(env_id, method, seed), total_timesteps=cfg.total_timesteps,
+                     agent_kwargs=agent_kwargs, **train_kwargs)
 
 
 def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
@@ -37,6 +54,11 @@ def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description="Pipeline stages that are not notebooks.")
     sub = parser.add_subparsers(dest="stage", required=True)
+    train = sub.add_parser("train", help="train (or resume) one run of the active profile")
+    train.add_argument("env_id")
+    train.add_argument("method")
+    train.add_argument("seed", type=int)
+    train.add_argument("--threads", type=int, default=1, help="torch threads")
     collect = sub.add_parser("collect", help="collect one run's ID and OOD states")
     collect.add_argument("env_id")
     collect.add_argument("method")
@@ -44,7 +66,10 @@ def main() -> None:
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args()
     cfg = load_run_config(args.params)
-    print(collect_run(cfg, args.env_id, args.method, args.seed))
+    if args.stage == "train":
+        print(train_stage(cfg, args.env_id, args.method, args.seed, torch_threads=args.threads))
+    else:
+        print(collect_run(cfg, args.env_id, args.method, args.seed))
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -84,7 +85,13 @@ def test_a_failure_while_writing_leaves_no_half_checkpoint(tmp_path, monkeypatch
     with pytest.raises(OSError, match="disk full"):
         train_run("CartPole-v1", "ensemble", 0, tmp_path / "ckpt", total_timesteps=128,
                   agent_kwargs={"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}})
-    assert list(tmp_path.iterdir()) == [], "neither the checkpoint nor its temporary folder remains"
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == [".ckpt.resume"], "no checkpoint and no temporary folder; only the run's resume point"
+    monkeypatch.undo()
+    out = train_run("CartPole-v1", "ensemble", 0, tmp_path / "ckpt", total_timesteps=128,
+                    agent_kwargs={"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}})
+    config = json.loads((out / "config.json").read_text())
+    assert config["resumed_from"] == 128 and config["trained_timesteps"] == 128, "the rerun only exported"
 
 
 def test_normalized_run_saves_and_reloads_its_observation_statistics(tmp_path):

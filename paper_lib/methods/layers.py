@@ -29,6 +29,23 @@ def _orthogonal_(weight: th.Tensor, gain: float) -> None:
             nn.init.orthogonal_(member_weight, gain=gain)
 
 
+def init_member_weights_(weight: th.Tensor, bias: th.Tensor, fan_in: int, gain: float, ortho_init: bool) -> None:
+    """Initialize a member layer exactly as SB3 initializes the matching plain layer.
+
+    `weight` is (members, out, in...) in PyTorch's layout (a view is fine). With SB3's
+    `ortho_init=True`: orthogonal with the layer role's gain, zero bias. With `ortho_init=False`
+    (the rl-baselines3-zoo MuJoCo recipe): PyTorch's own `nn.Linear`/`nn.Conv2d` default,
+    U(-1/sqrt(fan_in), 1/sqrt(fan_in)) for weight and bias, drawn independently per member.
+    """
+    if ortho_init:
+        _orthogonal_(weight, gain)
+        nn.init.zeros_(bias)
+    else:
+        bound = 1.0 / math.sqrt(fan_in)
+        nn.init.uniform_(weight, -bound, bound)
+        nn.init.uniform_(bias, -bound, bound)
+
+
 def bernoulli_keep_mask(shape: tuple[int, ...], p: float, device: th.device) -> th.Tensor:
     """Bernoulli(1-p) keep-mask, rescaled by 1/(1-p) (inverted dropout), for weights or activations.
 
@@ -57,7 +74,8 @@ class MemberLinear(nn.Module):
                  mask at every forward pass, in training and at inference (MC DropConnect).
     """
 
-    def __init__(self, d_in: int, d_out: int, k: int, mode: str = SHARED, p: float = 0.0, gain: float = math.sqrt(2)):
+    def __init__(self, d_in: int, d_out: int, k: int, mode: str = SHARED, p: float = 0.0, gain: float = math.sqrt(2),
+                 ortho_init: bool = True):
         super().__init__()
         if mode not in WEIGHT_MODES:
             raise ValueError(f"unknown weight mode {mode!r}; use one of {WEIGHT_MODES}")
@@ -65,11 +83,11 @@ class MemberLinear(nn.Module):
         if mode == ENSEMBLE:
             self.weight = nn.Parameter(th.empty(k, d_in, d_out))
             self.bias = nn.Parameter(th.zeros(k, 1, d_out))
-            _orthogonal_(self.weight.data.transpose(1, 2), gain)
+            init_member_weights_(self.weight.data.transpose(1, 2), self.bias.data, d_in, gain, ortho_init)
         else:  # a leading member axis of 1, so every mode's state dict has the same rank
             self.weight = nn.Parameter(th.empty(1, d_out, d_in))
             self.bias = nn.Parameter(th.zeros(1, 1, d_out))
-            _orthogonal_(self.weight.data, gain)
+            init_member_weights_(self.weight.data, self.bias.data, d_in, gain, ortho_init)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
         if self.mode == SHARED:  # .view, not [0]: indexing's backward builds and fills a full zero tensor
@@ -90,7 +108,7 @@ class MemberConv2d(nn.Module):
     """
 
     def __init__(self, c_in: int, c_out: int, kernel: int, stride: int, k: int, mode: str = SHARED, p: float = 0.0,
-                 gain: float = math.sqrt(2)):
+                 gain: float = math.sqrt(2), ortho_init: bool = True):
         super().__init__()
         if mode not in WEIGHT_MODES:
             raise ValueError(f"unknown weight mode {mode!r}; use one of {WEIGHT_MODES}")
@@ -98,7 +116,7 @@ class MemberConv2d(nn.Module):
         n_weights = k if mode == ENSEMBLE else 1
         self.weight = nn.Parameter(th.empty(n_weights, c_out, c_in, kernel, kernel))
         self.bias = nn.Parameter(th.zeros(n_weights, c_out))
-        _orthogonal_(self.weight.data, gain)
+        init_member_weights_(self.weight.data, self.bias.data, c_in * kernel * kernel, gain, ortho_init)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
         k, n = x.shape[:2]

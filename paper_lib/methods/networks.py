@@ -118,17 +118,18 @@ class MemberActorCritic(nn.Module):
 
 
 def _mlp_tower(d_in: int, hidden: list[int], d_out: int, spec: MemberSpec, activation: type[nn.Module],
-               out_gain: float, seed_offset: int) -> nn.Sequential:
+               out_gain: float, seed_offset: int, ortho_init: bool = True) -> nn.Sequential:
     layers: list[nn.Module] = []
     sizes = [d_in, *hidden]
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-        layers += [MemberLinear(a, b, spec.n_members, spec.weight_mode(i - 1 in STOCHASTIC_HIDDEN), spec.dropout_p),
+        layers += [MemberLinear(a, b, spec.n_members, spec.weight_mode(i - 1 in STOCHASTIC_HIDDEN), spec.dropout_p,
+                                ortho_init=ortho_init),
                    activation()]
         if i in STOCHASTIC_HIDDEN:
             layers.append(spec.stochastic(b, seed_offset + i))
     last = len(hidden) - 1
     layers.append(MemberLinear(sizes[-1], d_out, spec.n_members, spec.weight_mode(last in STOCHASTIC_HIDDEN),
-                               spec.dropout_p, gain=out_gain))
+                               spec.dropout_p, gain=out_gain, ortho_init=ortho_init))
     return nn.Sequential(*layers)
 
 
@@ -136,11 +137,11 @@ class MemberMLP(MemberActorCritic):
     """Separate policy and value MLPs (paper appendix A), each with its stochastic layers."""
 
     def __init__(self, obs_dim: int, action_dim: int, hidden: list[int], spec: MemberSpec,
-                 activation: type[nn.Module] = nn.Tanh):
+                 activation: type[nn.Module] = nn.Tanh, ortho_init: bool = True):
         super().__init__(spec, action_dim)
         spec.check_widths([w for i, w in enumerate(hidden) if i in STOCHASTIC_HIDDEN])
-        self.policy_tower = _mlp_tower(obs_dim, hidden, action_dim, spec, activation, 0.01, seed_offset=0)
-        self.value_tower = _mlp_tower(obs_dim, hidden, 1, spec, activation, 1.0, seed_offset=100)
+        self.policy_tower = _mlp_tower(obs_dim, hidden, action_dim, spec, activation, 0.01, 0, ortho_init)
+        self.value_tower = _mlp_tower(obs_dim, hidden, 1, spec, activation, 1.0, 100, ortho_init)
 
     def members(self, features: th.Tensor, layout: str, actor: bool = True, critic: bool = True):
         x = to_members(features, self.k, layout)
@@ -155,20 +156,21 @@ class MemberNatureCNN(MemberActorCritic):
     grouped convolutions and batched matmuls.
     """
 
-    def __init__(self, obs_shape: tuple[int, int, int], action_dim: int, spec: MemberSpec, features_dim: int = 512):
+    def __init__(self, obs_shape: tuple[int, int, int], action_dim: int, spec: MemberSpec, features_dim: int = 512,
+                 ortho_init: bool = True):
         super().__init__(spec, action_dim)
         spec.check_widths([32, features_dim])
-        k, p = spec.n_members, spec.dropout_p
+        k, p, o = spec.n_members, spec.dropout_p, ortho_init
         c, h, w = obs_shape
-        self.conv1 = MemberConv2d(c, 32, 8, 4, k, spec.weight_mode(False), p)
+        self.conv1 = MemberConv2d(c, 32, 8, 4, k, spec.weight_mode(False), p, ortho_init=o)
         self.after_conv1 = spec.stochastic(32, 0)
-        self.conv2 = MemberConv2d(32, 64, 4, 2, k, spec.weight_mode(True), p)
-        self.conv3 = MemberConv2d(64, 64, 3, 1, k, spec.weight_mode(False), p)
+        self.conv2 = MemberConv2d(32, 64, 4, 2, k, spec.weight_mode(True), p, ortho_init=o)
+        self.conv3 = MemberConv2d(64, 64, 3, 1, k, spec.weight_mode(False), p, ortho_init=o)
         n_flat = 64 * _conv_out(_conv_out(_conv_out(h, 8, 4), 4, 2), 3, 1) * _conv_out(_conv_out(_conv_out(w, 8, 4), 4, 2), 3, 1)
-        self.fc = MemberLinear(n_flat, features_dim, k, spec.weight_mode(False), p)
+        self.fc = MemberLinear(n_flat, features_dim, k, spec.weight_mode(False), p, ortho_init=o)
         self.after_fc = spec.stochastic(features_dim, 1)
-        self.policy_head = MemberLinear(features_dim, action_dim, k, spec.weight_mode(True), p, gain=0.01)
-        self.value_head = MemberLinear(features_dim, 1, k, spec.weight_mode(True), p, gain=1.0)
+        self.policy_head = MemberLinear(features_dim, action_dim, k, spec.weight_mode(True), p, gain=0.01, ortho_init=o)
+        self.value_head = MemberLinear(features_dim, 1, k, spec.weight_mode(True), p, gain=1.0, ortho_init=o)
 
     def trunk(self, x: th.Tensor) -> th.Tensor:
         x = self.after_conv1(th.relu(self.conv1(x)))

@@ -100,10 +100,10 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
             np.prod(self.action_space.shape))
         if isinstance(self.features_extractor, ImagePassthrough):
             self.mlp_extractor: MemberActorCritic = MemberNatureCNN(self.observation_space.shape, action_dim,
-                                                                    self.member_spec)
+                                                                    self.member_spec, ortho_init=self.ortho_init)
         else:
             self.mlp_extractor = MemberMLP(self.features_dim, action_dim, self.hidden_sizes, self.member_spec,
-                                           self.activation_fn)
+                                           self.activation_fn, ortho_init=self.ortho_init)
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)

@@ -38,7 +38,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecNormalize
 
-from paper_lib.envs import N_STACK, is_atari, register_atari
+from paper_lib.envs import N_STACK, is_atari, make_single_env, register_atari
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
 from paper_lib.ood.atari import ATARI_GAMES, make_atari_env_single, make_ood_atari_env, sample_atari_config
 from paper_lib.ood.datasets import ID_LABEL, NO_CONFIG, OOD_LABEL, StateDataset
@@ -424,7 +424,7 @@ def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: 
         if is_atari(env_id):
             venv = _atari_venv(make_atari_env_single(_atari_game(env_id), seed=env_seed))
             return _Run(venv, "id", None, f"{env_id} (seed {env_seed})")
-        venv = _seeded_venv(gym.make(env_id), env_seed)
+        venv = _seeded_venv(make_single_env(env_id), env_seed)
         check = _mujoco_instability if env_id in SUPPORTED_ENVS else None
         return _Run(venv, "id", None, f"{env_id} (seed {env_seed})", check)
 

@@ -15,18 +15,16 @@ material density; longer legs lift the torso so the robot starts on the floor.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
-import os
-import tempfile
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import gymnasium as gym
 import mujoco
 import numpy as np
+
+from paper_lib.envs import make_single_env, model_spec, write_model_xml
 
 SUPPORTED_ENVS: tuple[str, ...] = ("HalfCheetah-v5", "Ant-v5", "Walker2d-v5", "Swimmer-v5")
 KINDS: tuple[str, ...] = ("gravity", "wind", "friction", "geometry")
@@ -39,8 +37,6 @@ _INSTABILITY_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
 )
-# Scaled models stay on disk: gym.make(env.spec) and subprocess vec-envs re-read the path.
-_XML_CACHE = Path(tempfile.gettempdir()) / "paper_lib_ood_mujoco"
 
 
 class UnstablePerturbationWarning(RuntimeWarning):
@@ -317,10 +313,6 @@ def sample_config(
 # ---------------------------------------------------------------------------- geometry
 
 
-def _asset_path(xml: str) -> str:
-    return os.path.join(os.path.dirname(gym.__file__), "envs", "mujoco", "assets", xml)
-
-
 def _scale_body(body: mujoco.MjsBody, scale: float, anchor: np.ndarray, subtree: bool) -> None:
     """Stretch one body's contents about ``anchor`` (its own frame) by ``scale``.
 
@@ -382,23 +374,6 @@ def _lowest_point(model: mujoco.MjModel) -> float:
     return float(low)
 
 
-def _fix_total_mass_by_density(spec: mujoco.MjSpec) -> None:
-    """Replace ``settotalmass`` by the geom densities that give the same masses.
-
-    half_cheetah.xml rescales all masses to 14 kg. Scaling densities instead keeps
-    the original masses (to the 6 digits ``to_xml`` writes), lets a scaled part
-    gain mass with its volume instead of shrinking every other part to keep 14 kg,
-    and drops an attribute MuJoCo 4 deprecates. It must run before any geometry edit.
-    """
-    total = spec.compiler.settotalmass
-    if total <= 0:
-        return
-    spec.compiler.settotalmass = -1
-    raw = spec.compile().body_subtreemass[0]
-    for geom in spec.geoms:
-        geom.density *= total / raw
-
-
 def _scaled_spec(config: PerturbationConfig) -> mujoco.MjSpec:
     """Model spec with the config's parts stretched and the torso lifted to fit.
 
@@ -410,8 +385,7 @@ def _scaled_spec(config: PerturbationConfig) -> mujoco.MjSpec:
     check reads it). Swimmer never touches the floor and is not lifted.
     """
     info = _env_info(config.env_id)
-    spec = mujoco.MjSpec.from_file(_asset_path(info.xml))
-    _fix_total_mass_by_density(spec)
+    spec = model_spec(config.env_id)
     original_low = _lowest_point(spec.compile())
     for name, scale in (config.geometry_scales or {}).items():
         part = info.parts[name]
@@ -428,19 +402,6 @@ def _scaled_spec(config: PerturbationConfig) -> mujoco.MjSpec:
     return spec
 
 
-def _xml_file(spec: mujoco.MjSpec) -> str:
-    """Write the model once under a content-hash name; the file stays for re-made envs."""
-    spec.compile()
-    xml = spec.to_xml()
-    _XML_CACHE.mkdir(parents=True, exist_ok=True)
-    path = _XML_CACHE / f"{hashlib.sha256(xml.encode()).hexdigest()[:20]}.xml"
-    if not path.exists():
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(xml)
-        os.replace(tmp, path)
-    return str(path.resolve())
-
-
 def make_perturbed_env(config: PerturbationConfig, **gym_kwargs) -> gym.Env:
     """``gym.make`` the config's env with its physics perturbed.
 
@@ -454,11 +415,11 @@ def make_perturbed_env(config: PerturbationConfig, **gym_kwargs) -> gym.Env:
     if config.geometry_scales:
         if "xml_file" in gym_kwargs:
             raise ValueError("Geometry scaling writes its own model: drop xml_file or geometry_scales.")
-        gym_kwargs["xml_file"] = _xml_file(_scaled_spec(config))
+        gym_kwargs["xml_file"] = write_model_xml(_scaled_spec(config))
         healthy = _env_info(config.env_id).healthy_z_range
         if healthy is not None and "healthy_z_range" not in gym_kwargs:
             gym_kwargs["healthy_z_range"] = (healthy[0], healthy[1] * max(config.geometry_scales.values()))
-    env = gym.make(config.env_id, **gym_kwargs)
+    env = make_single_env(config.env_id, **gym_kwargs)
     model = env.unwrapped.model
     if config.gravity is not None:
         model.opt.gravity[:] = config.gravity
