@@ -1,12 +1,17 @@
-# Two entry points for a fresh machine (see README):
-#   make reproduce   set up .venv, then `dvc repro`: every table and figure from the committed checkpoints
-#   make test        set up .venv, then the test suite
+# Entry points for a fresh machine (see README):
+#   make reproduce   set up .venv, then every table and figure from the committed checkpoints and datasets
+#                    (minutes; never trains, never collects; lists the profile's runs that are missing)
+#   make test        set up .venv, then the test suite (CI runs exactly this: .ci/run)
+#   make recollect   ID/OOD states and evaluation episodes again for every committed checkpoint, then reproduce (long)
+#   make retrain     train every missing or changed run of the active profile, then everything (HOURS per run)
+#   make render-deps install the EGL libraries MuJoCo's offscreen rendering needs (Debian/Ubuntu, as root)
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+WITH_VENV := PATH=$(CURDIR)/$(BIN):$$PATH
 
-.PHONY: setup reproduce test bench regenerate
+.PHONY: setup reproduce regenerate recollect retrain test bench render-deps
 
 setup: $(STAMP)
 
@@ -19,15 +24,28 @@ $(STAMP): environment.lock pyproject.toml
 	touch $(STAMP)
 
 reproduce: $(STAMP)
-	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/dvc repro
+	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce
+
+# The former name of `reproduce`.
+regenerate: reproduce
+
+recollect: $(STAMP)
+	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce --recollect
+
+retrain: $(STAMP)
+	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce --retrain
 
 test: $(STAMP)
-	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/python -m pytest -n 2 -q tests
+	$(WITH_VENV) $(BIN)/python -m pytest -n 2 -q tests
 
 bench: $(STAMP)
 	$(BIN)/python -m paper_lib.bench
 
-# Every table and figure again from the committed checkpoints (nothing is retrained).
-regenerate: $(STAMP)
-	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/dvc repro -f -s collect
-	PATH=$(CURDIR)/$(BIN):$$PATH $(BIN)/dvc repro -f -s rewards ood uncertainty_over_time training_and_perturbations paper_vs_us
+# MuJoCo renders offscreen with EGL (MUJOCO_GL=egl); these Debian packages provide it. Skipped where
+# apt-get is missing or we are not root: the notebooks then say that frames are unavailable.
+render-deps:
+	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && apt-get install -y -qq libegl1 libopengl0 libegl-mesa0 libgl1-mesa-dri; \
+	else \
+		echo "render-deps: needs apt-get and root; install libegl1 libopengl0 libegl-mesa0 libgl1-mesa-dri yourself"; \
+	fi

@@ -142,18 +142,37 @@ class KNNDetector(_Detector):
 
 
 def split_fit_eval(
-    states: np.ndarray | int, rng: np.random.Generator, fit_fraction: float = 0.5
+    states: np.ndarray | int, rng: np.random.Generator, fit_fraction: float = 0.5,
+    groups: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Randomly split ID states into disjoint (fit_idx, eval_idx) index arrays, each sorted.
 
     ``states`` is the state array (its first axis is split) or the number of states.
     Detectors are fit on ``fit_idx`` and the ID side of the metrics uses ``eval_idx``.
+    With ``groups`` (one label per state, e.g. its episode), whole groups go to one side:
+    consecutive states of an episode are near-copies, so a state whose episode-mates sit in
+    the fit half is "near" the fit data by construction and a distance detector would be
+    flattered. Then ``fit_fraction`` is the share of groups that go to the fit side.
     """
     n = int(states) if np.isscalar(states) else len(states)
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
     if not 0.0 < fit_fraction < 1.0:
         raise ValueError(f"fit_fraction must lie strictly between 0 and 1, got {fit_fraction!r}.")
+    if groups is not None:
+        labels = np.asarray(groups)
+        if labels.shape != (n,):
+            raise ValueError(f"groups must give one label per state ({n}), got shape {labels.shape}.")
+        names, index = np.unique(labels, return_inverse=True)
+        n_fit = int(round(fit_fraction * names.size))
+        if n_fit < 1 or n_fit > names.size - 1:
+            raise ValueError(
+                f"split_fit_eval: {names.size} group(s) (episodes) with fit_fraction={fit_fraction} leave an empty fit "
+                "or eval part; collect ID states from more episodes (at least 2)."
+            )
+        fit_groups = rng.permutation(names.size)[:n_fit]
+        in_fit = np.isin(index, fit_groups)
+        return np.flatnonzero(in_fit), np.flatnonzero(~in_fit)
     n_fit = int(round(fit_fraction * n))
     if n_fit < 1 or n_fit > n - 1:
         raise ValueError(

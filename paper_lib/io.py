@@ -117,7 +117,7 @@ def remove_stale_temps(path: str | os.PathLike[str]) -> list[Path]:
     recover_dir(target)
     stale = sorted(target.parent.glob(f".{target.name}.*")) if target.parent.is_dir() else []
     for entry in stale:
-        if entry.name.endswith(".resume"):  # resume points are not temporary
+        if entry.name.endswith((".resume", ".tensorboard")):  # resume points and logs are not temporary
             continue
         shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
     return stale

@@ -3,13 +3,21 @@
 Convention used everywhere in this module: **OOD states are the positive class**
 (label 1), ID states the negative class (label 0), and the uncertainty is the score
 (higher = more likely OOD). "FPR@95" therefore means: the fraction of ID states
-flagged as OOD when the threshold is set so that 95% of OOD states are flagged.
-Libraries that take ID as positive report a different number under the same name.
+flagged as OOD when the threshold is set so that 95% of OOD states are flagged
+(OpenOOD's definition). Libraries that take ID as positive report a different number
+under the same name.
+
+Confidence intervals: a run's states come in clusters (the states of one episode, or of
+one OOD configuration, are far from independent), so `cluster_bootstrap_auroc` resamples
+whole clusters; resampling single states (`bootstrap_auroc_ci`) gives intervals that are
+too narrow for such data. `seed_cluster_ci` combines runs of several training seeds:
+resample seeds, then clusters within each.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -113,16 +121,181 @@ def bootstrap_auroc_ci(
     return float(low), float(high)
 
 
+def _weighted_aurocs(id_s: np.ndarray, ood_s: np.ndarray, w_id: np.ndarray, w_ood: np.ndarray) -> np.ndarray:
+    """AUROC of each row's weighted sample (weights = how often a state was drawn), ties counting 1/2.
+
+    One sort for all rows: per distinct score value, the OOD weight there times the ID weight
+    below it (plus half the ID weight at it), summed and normalized.
+    """
+    scores = np.concatenate([id_s, ood_s])
+    order = np.argsort(scores, kind="stable")
+    ordered = scores[order]
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    is_ood = order >= id_s.size
+    weights = np.concatenate([w_id, w_ood], axis=1)[:, order]
+    at_id = np.add.reduceat(np.where(is_ood, 0.0, weights), starts, axis=1)
+    at_ood = np.add.reduceat(np.where(is_ood, weights, 0.0), starts, axis=1)
+    below = np.cumsum(at_id, axis=1) - at_id
+    u = (at_ood * (below + 0.5 * at_id)).sum(axis=1)
+    return u / (at_id.sum(axis=1) * at_ood.sum(axis=1))
+
+
+def _score_rows(scores: ArrayLike, name: str) -> np.ndarray:
+    """(S, n) scores, one row per scoring seed; a 1-D array is one seed."""
+    arr = np.asarray(scores, dtype=float)
+    if arr.ndim == 1:
+        return _as_scores(arr, name)[None]
+    if arr.ndim != 2 or arr.shape[0] == 0:
+        raise ValueError(f"{name} must be (n,) or (scoring seeds, n) scores, got shape {arr.shape}.")
+    for row in arr:
+        _as_scores(row, name)
+    return arr
+
+
+def _cluster_labels(clusters: ArrayLike | None, n: int, name: str) -> np.ndarray:
+    if clusters is None:  # every state its own cluster (the state bootstrap), never shared with the other side
+        return np.char.add(f"{name}-state-", np.arange(n).astype(str))
+    labels = np.asarray(clusters).astype(str)
+    if labels.shape != (n,):
+        raise ValueError(f"{name} must give one cluster label per state ({n}), got shape {labels.shape}.")
+    return labels
+
+
+@dataclass
+class AurocInterval:
+    """A bootstrap interval of the AUROC, with its replicates (to combine runs of several seeds)."""
+
+    low: float
+    high: float
+    replicates: np.ndarray
+
+
+def cluster_bootstrap_auroc(
+    id_scores: ArrayLike,
+    ood_scores: ArrayLike,
+    id_clusters: ArrayLike | None,
+    ood_clusters: ArrayLike | None,
+    rng: np.random.Generator,
+    n_boot: int = 1000,
+    level: float = 0.95,
+) -> AurocInterval:
+    """Percentile interval of the AUROC when whole clusters (episodes, configurations) are resampled.
+
+    ID clusters are drawn with replacement (as many as there are), and so are the OOD clusters
+    that do not occur on the ID side. An OOD cluster that shares its label with an ID cluster
+    (noise OOD states made from that ID episode's states) follows the draw of that ID cluster,
+    so dependent ID and OOD states are resampled together. Clusters None = each state its own.
+    Scores may be (S, n): S scoring seeds of a stochastic method scored on the same states;
+    each replicate is then the mean AUROC over the S seeds (the same clusters for all).
+    """
+    id_s, ood_s = _score_rows(id_scores, "id_scores"), _score_rows(ood_scores, "ood_scores")
+    if id_s.shape[0] != ood_s.shape[0]:
+        raise ValueError(f"id_scores has {id_s.shape[0]} scoring seeds but ood_scores {ood_s.shape[0]}; "
+                         "give both the same.")
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
+    if int(n_boot) != n_boot or n_boot < 1:
+        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}.")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie strictly between 0 and 1 (e.g. 0.95), got {level!r}.")
+    id_labels = _cluster_labels(id_clusters, id_s.shape[1], "id_clusters")
+    ood_labels = _cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")
+    id_names, id_index = np.unique(id_labels, return_inverse=True)
+    shared = np.isin(ood_labels, id_names)
+    own_names, own_index = np.unique(ood_labels[~shared], return_inverse=True)
+    n = id_s.shape[1] + ood_s.shape[1]
+    chunk = max(1, 2_000_000 // n)
+    replicates = []
+    for start in range(0, int(n_boot), chunk):
+        b = min(chunk, int(n_boot) - start)
+        id_counts = rng.multinomial(id_names.size, np.full(id_names.size, 1.0 / id_names.size), size=b)
+        w_ood = np.empty((b, ood_s.shape[1]))
+        w_ood[:, shared] = id_counts[:, np.searchsorted(id_names, ood_labels[shared])]
+        if own_names.size:
+            own_counts = rng.multinomial(own_names.size, np.full(own_names.size, 1.0 / own_names.size), size=b)
+            w_ood[:, ~shared] = own_counts[:, own_index]
+        w_id = id_counts[:, id_index].astype(float)
+        aurocs = [_weighted_aurocs(i, o, w_id, w_ood) for i, o in zip(id_s, ood_s)]
+        replicates.append(np.mean(aurocs, axis=0))
+    reps = np.concatenate(replicates)
+    alpha = (1.0 - level) / 2.0
+    low, high = np.nanquantile(reps, [alpha, 1.0 - alpha])
+    return AurocInterval(float(low), float(high), reps)
+
+
+def seed_cluster_ci(replicates: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int = 1000,
+                    level: float = 0.95) -> tuple[float, float]:
+    """Interval of the mean AUROC over training seeds: resample seeds, then clusters within each.
+
+    ``replicates[s]`` are seed s's cluster-bootstrap replicates (`cluster_bootstrap_auroc`).
+    Each outer replicate draws as many seeds as there are, with replacement, and for each
+    draw one of that seed's cluster replicates; their mean is the replicate. With one seed
+    this is that seed's own cluster interval.
+    """
+    reps = [np.asarray(r, dtype=float) for r in replicates]
+    if not reps or any(r.ndim != 1 or r.size == 0 for r in reps):
+        raise ValueError("replicates must be a non-empty list of non-empty 1-D arrays, one per training seed.")
+    alpha = (1.0 - level) / 2.0
+    if len(reps) == 1:
+        low, high = np.nanquantile(reps[0], [alpha, 1.0 - alpha])
+        return float(low), float(high)
+    n_seeds = len(reps)
+    seeds = rng.integers(0, n_seeds, size=(int(n_boot), n_seeds))
+    picks = rng.random(size=(int(n_boot), n_seeds))
+    sizes = np.array([r.size for r in reps])
+    stacked = np.full((n_seeds, sizes.max()), np.nan)
+    for i, r in enumerate(reps):
+        stacked[i, :r.size] = r
+    values = stacked[seeds, (picks * sizes[seeds]).astype(int)].mean(axis=1)
+    low, high = np.nanquantile(values, [alpha, 1.0 - alpha])
+    return float(low), float(high)
+
+
+def measure_metrics(
+    id_scores: ArrayLike,
+    ood_scores: ArrayLike,
+    rng: np.random.Generator,
+    n_boot: int = 1000,
+    level: float = 0.95,
+    id_clusters: ArrayLike | None = None,
+    ood_clusters: ArrayLike | None = None,
+) -> tuple[dict[str, float | int | str], np.ndarray]:
+    """One measure's row of metrics (means over scoring seeds) and its AUROC bootstrap replicates.
+
+    Scores are (n,) or (S, n) for S scoring seeds. The row: auroc, aupr_out, aupr_in,
+    fpr_at_95_tpr, detection_error (each the mean over scoring seeds), the AUROC's spread over
+    scoring seeds (auroc_scoring_std/min/max), its interval (auroc_ci_low/high) from the
+    cluster bootstrap (ci="cluster"), or from the state bootstrap without clusters (ci="state").
+    """
+    id_s, ood_s = _score_rows(id_scores, "id_scores"), _score_rows(ood_scores, "ood_scores")
+    per_seed = pd.DataFrame([detection_metrics(i, o) for i, o in zip(id_s, ood_s)])
+    interval = cluster_bootstrap_auroc(id_s, ood_s, id_clusters, ood_clusters, rng, n_boot=n_boot, level=level)
+    clustered = id_clusters is not None or ood_clusters is not None
+    row: dict[str, float | int | str] = {
+        name: float(per_seed[name].mean()) for name in ("auroc", "aupr_out", "aupr_in", "fpr_at_95_tpr",
+                                                         "detection_error")}
+    row.update(auroc_ci_low=interval.low, auroc_ci_high=interval.high, ci="cluster" if clustered else "state",
+               auroc_scoring_std=float(per_seed["auroc"].std(ddof=0)), auroc_scoring_min=float(per_seed["auroc"].min()),
+               auroc_scoring_max=float(per_seed["auroc"].max()), n_scoring_seeds=int(len(per_seed)),
+               n_id=int(id_s.shape[1]), n_ood=int(ood_s.shape[1]),
+               n_id_clusters=int(np.unique(_cluster_labels(id_clusters, id_s.shape[1], "id_clusters")).size),
+               n_ood_clusters=int(np.unique(_cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")).size))
+    return row, interval.replicates
+
+
 def metrics_table(
     scores: Mapping[str, tuple[ArrayLike, ArrayLike]],
     rng: np.random.Generator,
     n_boot: int = 1000,
     level: float = 0.95,
+    id_clusters: ArrayLike | None = None,
+    ood_clusters: ArrayLike | None = None,
 ) -> pd.DataFrame:
     """One row per uncertainty measure: all detection metrics plus the AUROC bootstrap CI.
 
-    ``scores`` maps a measure name (e.g. "value_uncertainty") to its (ID, OOD) score
-    arrays. Rows keep the mapping's order; the CI columns are auroc_ci_low/high.
+    ``scores`` maps a measure name (e.g. "value_std") to its (ID, OOD) score arrays, each
+    (n,) or (scoring seeds, n). Rows keep the mapping's order; see `measure_metrics` for the
+    columns. With cluster labels (shared by every measure), the CI resamples whole clusters.
     """
     if not isinstance(scores, Mapping) or len(scores) == 0:
         raise ValueError("scores must be a non-empty dict {measure name: (id_scores, ood_scores)}.")
@@ -130,11 +303,10 @@ def metrics_table(
     for measure, pair in scores.items():
         if not isinstance(pair, (tuple, list)) or len(pair) != 2:
             raise ValueError(f"scores[{measure!r}] must be a pair (id_scores, ood_scores), got {type(pair).__name__}.")
-        id_s, ood_s = pair
         try:
-            row = detection_metrics(id_s, ood_s)
-            low, high = bootstrap_auroc_ci(id_s, ood_s, rng, n_boot=n_boot, level=level)
+            row, _ = measure_metrics(*pair, rng, n_boot=n_boot, level=level, id_clusters=id_clusters,
+                                     ood_clusters=ood_clusters)
         except ValueError as err:
             raise ValueError(f"scores[{measure!r}]: {err}") from None
-        rows.append({"measure": measure, **row, "auroc_ci_low": low, "auroc_ci_high": high})
+        rows.append({"measure": measure, **row})
     return pd.DataFrame(rows)

@@ -18,14 +18,17 @@ MEASURES = ("value_std", "policy_std", "policy_js")
 def perturbation_ratios(checkpoint: Checkpoint, dataset: StateDataset, rng: np.random.Generator) -> pd.DataFrame:
     """Mean measure on perturbed ID states / mean on the ID states: one row per (perturbation, measure).
 
-    Images get the paper's pixel perturbations; vector observations get uniform noise.
+    Images get the paper's pixel perturbations; vector observations get uniform noise (added to the
+    raw states, then normalized with the run's saved statistics where it used VecNormalize).
     """
     id_data = dataset.id_only()
     base = score_dataset(checkpoint.model, id_data)
     if id_data.states.ndim > 2:
         variants = {kind: pixel_ood_states(id_data, [kind], rng) for kind in PIXEL_PERTURBATIONS}
     else:
-        variants = {f"noise x{m:g} std": noise_ood_states(id_data, rng, magnitude=m) for m in NOISE_MAGNITUDES}
+        normalizer = checkpoint.env(1, 0) if checkpoint.vecnormalize_path is not None else None
+        variants = {f"noise x{m:g} std": noise_ood_states(id_data, rng, magnitude=m, vecnormalize=normalizer)
+                    for m in NOISE_MAGNITUDES}
     rows = []
     for name, perturbed in variants.items():
         scored = score_dataset(checkpoint.model, perturbed)

@@ -35,19 +35,28 @@ def train_stage(cfg: RunConfig, env_id: str, method: str, seed: int, **train_kwa
 
 
 def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
-    """ID and OOD states of one trained run, with the profile's action mode, saved as one dataset."""
+    """ID and OOD states of one trained run, with the profile's action mode and protocol, saved as one dataset.
+
+    protocol "main" (section 5): id_episodes and ood_configs clusters of steps_per_config states
+    each; "appendix" (appendix G): n_id_states and n_ood_states, a new configuration per episode.
+    """
     th.set_num_threads(1)
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
     vecnormalize = ckpt.env(1, seed) if ckpt.vecnormalize_path is not None else None
     mode = ActionMode(deterministic=cfg.deterministic, inference=cfg.inference)
     common = dict(action_mode=mode, max_episode_steps=cfg.max_episode_steps, skip_first=cfg.skip_first,
                   vecnormalize=vecnormalize)
-    id_states = collect_id_states(ckpt.model, env_id, cfg.n_id_states, seed=1000 * seed + 1, **common)
+    if cfg.protocol == "main":
+        id_size = dict(episodes=cfg.id_episodes, steps_per_episode=cfg.steps_per_config)
+        ood_size = dict(configs=cfg.ood_configs, steps_per_config=cfg.steps_per_config)
+    else:
+        id_size, ood_size = dict(n_states=cfg.n_id_states), dict(n_states=cfg.n_ood_states)
+    id_states = collect_id_states(ckpt.model, env_id, seed=1000 * seed + 1, **id_size, **common)
     if is_atari(env_id):
         common.pop("vecnormalize")
-        ood_states = collect_atari_ood_states(ckpt.model, env_id, cfg.n_ood_states, seed=1000 * seed + 2, **common)
+        ood_states = collect_atari_ood_states(ckpt.model, env_id, seed=1000 * seed + 2, **ood_size, **common)
     else:
-        ood_states = collect_mujoco_ood_states(ckpt.model, env_id, cfg.n_ood_states, seed=1000 * seed + 2, **common)
+        ood_states = collect_mujoco_ood_states(ckpt.model, env_id, seed=1000 * seed + 2, **ood_size, **common)
     return concat(id_states, ood_states).save(cfg.dataset_path(env_id, method, seed))
 
 
@@ -65,11 +74,16 @@ def main() -> None:
     collect.add_argument("seed", type=int)
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args()
-    cfg = load_run_config(args.params)
-    if args.stage == "train":
-        print(train_stage(cfg, args.env_id, args.method, args.seed, torch_threads=args.threads))
-    else:
-        print(collect_run(cfg, args.env_id, args.method, args.seed))
+    try:  # a bad input is one line naming the problem, not a traceback
+        cfg = load_run_config(args.params)
+        if args.stage == "train":
+            if args.threads < 1:
+                raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
+            print(train_stage(cfg, args.env_id, args.method, args.seed, torch_threads=args.threads))
+        else:
+            print(collect_run(cfg, args.env_id, args.method, args.seed))
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
 
 
 if __name__ == "__main__":

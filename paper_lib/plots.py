@@ -44,20 +44,43 @@ def _keep_last_legend(axes: list, outside: bool = False) -> None:
 def save_figure(fig: Figure, stem: str | os.PathLike[str], dpi: int = 150) -> dict[str, Path]:
     """Write ``stem``.png (``dpi``) and ``stem``.pdf atomically, then close the figure.
 
-    The PDF's CreationDate is dropped so that re-running a pipeline with the same
-    inputs reproduces the file byte for byte (PNG from Agg carries no timestamp).
+    The PDF's CreationDate and the PNG's Software tag are dropped so that re-running a pipeline
+    with the same inputs reproduces both files byte for byte, across matplotlib versions too
+    (PNG from Agg carries no timestamp).
     """
     if not isinstance(fig, Figure):
         raise ValueError(f"save_figure: expected a matplotlib Figure, got {type(fig).__name__}.")
     paths = {"png": Path(f"{os.fspath(stem)}.png"), "pdf": Path(f"{os.fspath(stem)}.pdf")}
     try:
         with atomic_path(paths["png"]) as tmp:
-            fig.savefig(tmp, format="png", dpi=dpi)
+            fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
         with atomic_path(paths["pdf"]) as tmp:
             fig.savefig(tmp, format="pdf", metadata={"CreationDate": None})
     finally:
         plt.close(fig)  # releases pyplot's reference if the caller made the figure with pyplot
     return paths
+
+
+def show_figure(fig: Figure, stem: str | os.PathLike[str] | None = None, width: int = 900) -> None:
+    """Display ``fig`` inline in a notebook as a PNG; with a ``stem``, save it first (``save_figure``) and show that file.
+
+    The PNG itself is displayed rather than relying on matplotlib's inline backend (which
+    ``MPLBACKEND=Agg`` turns off and which ignores figures made without pyplot), so an executed
+    notebook shows exactly the committed figure.
+    """
+    import io
+
+    from IPython.display import Image, display
+
+    if stem is not None:
+        display(Image(filename=str(save_figure(fig, stem)["png"]), width=width))
+        return
+    if not isinstance(fig, Figure):
+        raise ValueError(f"show_figure: expected a matplotlib Figure, got {type(fig).__name__}.")
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=150, metadata={"Software": None})
+    plt.close(fig)
+    display(Image(data=buffer.getvalue(), width=width))
 
 
 def roc_curves(df: pd.DataFrame) -> Figure:
@@ -140,6 +163,58 @@ def normalized_bars(df: pd.DataFrame) -> Figure:
     return fig
 
 
+def timeline(df: pd.DataFrame, event_step: float | None = None, reference: float | None = None,
+             ylabel: str = "score") -> Figure:
+    """Scores over the steps of one episode, one panel per ``panel``, colour = ``measure``.
+
+    Expects columns step, score, measure, panel. A red vertical line marks ``event_step`` (e.g.
+    where the physics changed) and a dashed horizontal line ``reference`` (e.g. a threshold).
+    """
+    require_columns(df, ["step", "score", "measure", "panel"], "timeline")
+    panels = list(pd.unique(df["panel"]))
+    fig = Figure(figsize=(PANEL_SIZE[0] * 2.2, PANEL_SIZE[1] * 0.8 * len(panels)), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = list(fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0])
+    for ax, panel in zip(axes, panels):
+        sub = df[df["panel"] == panel]
+        sns.lineplot(data=sub, x="step", y="score", hue="measure", hue_order=list(pd.unique(sub["measure"])),
+                     errorbar=None, linewidth=1.0, ax=ax)
+        if event_step is not None:
+            ax.axvline(event_step, color="red", linewidth=1.5)
+        if reference is not None:
+            ax.axhline(reference, color="black", linestyle="--", linewidth=0.8)
+        ax.set(title=str(panel), ylabel=ylabel)
+        sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, title=None)
+    axes[-1].set(xlabel="step")
+    return fig
+
+
+def image_grid(images: list, titles: list[str], ncols: int | None = None, panel_width: float = 2.4,
+               suptitle: str | None = None) -> Figure:
+    """Images (H, W, 3) RGB or (H, W) grey in a grid, each with its (wrapped) title; axes hidden."""
+    if len(images) != len(titles) or not images:
+        raise ValueError(f"image_grid: need one title per image and at least one image, got {len(images)} images "
+                         f"and {len(titles)} titles.")
+    import textwrap
+
+    ncols = ncols or len(images)
+    nrows = -(-len(images) // ncols)
+    first = images[0]
+    aspect = first.shape[0] / first.shape[1]
+    fig = Figure(figsize=(panel_width * ncols, (panel_width * aspect + 0.55) * nrows), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax in axes[len(images):]:
+        ax.set_axis_off()
+    for ax, image, title in zip(axes, images, titles):
+        ax.set(xticks=[], yticks=[])  # the frame stays: a white image is still seen
+        ax.imshow(image, cmap="gray" if image.ndim == 2 else None, vmin=0, vmax=255, interpolation="nearest")
+        ax.set_title(textwrap.fill(title, width=int(panel_width * 11)), fontsize="x-small")
+    if suptitle:
+        fig.suptitle(suptitle, fontsize="small")
+    return fig
+
+
 def pareto_scatter(df: pd.DataFrame) -> Figure:
     """Reward vs. AUROC of every configuration (colour = method); Pareto-optimal ones enlarged with a black edge.
 
@@ -164,4 +239,5 @@ def pareto_scatter(df: pd.DataFrame) -> Figure:
     return fig
 
 
-__all__ = ["save_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars", "pareto_scatter"]
+__all__ = ["save_figure", "show_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars",
+           "timeline", "image_grid", "pareto_scatter"]

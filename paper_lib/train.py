@@ -251,6 +251,8 @@ def main(argv: list[str] | None = None) -> None:
             check_budget(args.timesteps)
         if args.resume_every <= 0:
             raise ValueError(f"--resume-every must be a positive number of steps, got {args.resume_every}")
+        if args.threads <= 0:
+            raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
         agent_kwargs: dict[str, Any] = {"assignment": args.assignment}
         if args.hp:
             from paper_lib.agents import paper_hyperparameters

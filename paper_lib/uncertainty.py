@@ -1,4 +1,10 @@
-"""One batched call from a policy and N states to every uncertainty measure."""
+"""One batched call from a policy and N states to every uncertainty measure.
+
+MC methods (MC Dropout, MC DropConnect) sample their k members per state: each state gets
+its own seed, drawn up front for all N states from `seed` (or from torch's RNG when None),
+so a state's scores do not depend on the batch it is scored in, and the same seed gives the
+same scores whatever `batch_size` is.
+"""
 
 from __future__ import annotations
 
@@ -8,10 +14,11 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.preprocessing import is_image_space
 
 from paper_lib import measures
 from paper_lib.methods.networks import to_members
-from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions
+from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions, draw_state_seeds
 
 
 @dataclass
@@ -23,23 +30,61 @@ class MemberOutputs:
     discrete: bool
 
 
-def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024) -> MemberOutputs:
+def check_observations(policy: ActorCriticPolicy, observations: np.ndarray, *, single_ok: bool = False,
+                       what: str = "observations") -> tuple[np.ndarray, bool]:
+    """`observations` as an (N, *obs_shape) array with N >= 1 and finite values, or one ValueError.
+
+    Returns (batch, vectorized); a single observation (no batch axis) is accepted where
+    `single_ok`. Channel-last images are accepted for image policies, as SB3 accepts them.
+    """
+    obs = np.asarray(observations)
+    space = policy.observation_space
+    shapes = [tuple(space.shape)]
+    if is_image_space(space) and len(space.shape) == 3:
+        shapes.append((space.shape[1], space.shape[2], space.shape[0]))  # SB3 transposes channel-last images
+    if single_ok and obs.shape in shapes:
+        obs, vectorized = obs[None], False
+    else:
+        vectorized = True
+    if obs.ndim == 0 or obs.shape[1:] not in shapes or obs.shape[0] == 0 or obs.dtype == object:
+        expected = " or ".join(f"(N, {', '.join(map(str, s))})" for s in shapes)
+        raise ValueError(f"{what} have shape {obs.shape} but this policy takes {expected} with N >= 1 "
+                         f"(its observation space is {space}); pass states of the env it was trained on, "
+                         "stacked along a first axis")
+    if np.issubdtype(obs.dtype, np.number) and not np.issubdtype(obs.dtype, np.integer) and not np.isfinite(obs).all():
+        bad = int((~np.isfinite(obs.reshape(len(obs), -1))).any(axis=1).sum())
+        raise ValueError(f"{what} hold NaN or inf in {bad} of {len(obs)} states; drop or fix those states first")
+    return obs, vectorized
+
+
+def _state_seeds(policy: ActorCriticPolicy, n: int, seed: int | None) -> np.ndarray | None:
+    """One seed per state, for every state at once (so batching cannot change them); None without MC layers."""
+    if not (isinstance(policy, MemberActorCriticPolicy) and policy.samples_members):
+        return None
+    generator = None if seed is None else th.Generator().manual_seed(int(seed))
+    return draw_state_seeds(n, generator)
+
+
+def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+                   seed: int | None = None) -> MemberOutputs:
     """All members on all states, in batches of `batch_size` states, one forward pass each.
 
     `observations` are what the policy sees (after VecNormalize, if the env used it). A
-    baseline policy is returned as a single member (k = 1).
+    baseline policy is returned as a single member (k = 1). MC methods sample per (member,
+    state) from per-state seeds drawn from `seed` (torch's global RNG when None).
     """
     discrete = isinstance(policy.action_space, spaces.Discrete)
-    obs = np.asarray(observations)
-    if obs.shape[0] == 0:
-        raise ValueError("member_outputs got no observations; pass an array of shape (N, *obs_shape) with N >= 1")
+    obs, _ = check_observations(policy, observations)
     values, params = [], []
+    members = isinstance(policy, MemberActorCriticPolicy)
+    seeds = _state_seeds(policy, len(obs), seed)
     policy.set_training_mode(False)
     with th.no_grad():
         for start in range(0, obs.shape[0], batch_size):
             tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
-            if isinstance(policy, MemberActorCriticPolicy):
-                pi, vf = policy.member_outputs_from_tensor(tensor)
+            if members:
+                chunk_seeds = None if seeds is None else seeds[start:start + batch_size]
+                pi, vf = policy.member_outputs_from_tensor(tensor, chunk_seeds)
             else:
                 pi, vf = _single_member(policy, tensor)
             values.append(vf.cpu().numpy())
@@ -57,14 +102,15 @@ def _single_member(policy: ActorCriticPolicy, obs: th.Tensor) -> tuple[th.Tensor
 
 
 def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wanted: tuple[str, ...] | None = None,
-                batch_size: int = 1024) -> dict[str, np.ndarray]:
+                batch_size: int = 1024, seed: int | None = None) -> dict[str, np.ndarray]:
     """Every applicable measure, each of shape (N,).
 
     value_std, policy_std and policy_js need members; max_prob and entropy exist for discrete
     actions only. A baseline policy (no members) gives max_prob and entropy; asking it for a
     member measure is an error. A baseline with continuous actions has no measure: {}.
+    `seed` fixes the MC methods' samples (see `member_outputs`).
     """
-    out = member_outputs(policy, observations, batch_size)
+    out = member_outputs(policy, observations, batch_size, seed=seed)
     k = out.values.shape[0]
     available = (measures.MEMBER_MEASURES if k > 1 else ()) + (measures.DISCRETE_ONLY if out.discrete else ())
     wanted = available if measures_wanted is None else tuple(measures_wanted)
@@ -81,30 +127,35 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
     return {name: computed[name] for name in wanted}
 
 
-def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024) -> np.ndarray:
+def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+                    seed: int | None = None) -> np.ndarray:
     """The policy's last hidden layer on N states, (N, H): the input of its action head.
 
     For member policies the members' features are averaged, so a member-free detector
     (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
+    MC methods sample per (member, state), seeded like `member_outputs`.
     """
-    obs = np.asarray(observations)
+    obs, _ = check_observations(policy, observations)
+    seeds = _state_seeds(policy, len(obs), seed)
     chunks = []
     policy.set_training_mode(False)
     with th.no_grad():
         for start in range(0, obs.shape[0], batch_size):
             tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
-            chunks.append(_last_hidden(policy, tensor).cpu().numpy())
+            chunks.append(_last_hidden(policy, tensor, None if seeds is None else seeds[start:start + batch_size])
+                          .cpu().numpy())
     return np.concatenate(chunks)
 
 
-def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
+def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
     features = policy.extract_features(obs)
     if isinstance(policy, MemberActorCriticPolicy):
         net = policy.mlp_extractor
-        if hasattr(net, "policy_tower"):
-            x = net.policy_tower[:-1](to_members(features, net.k, "all"))
-        else:
-            x = net.trunk(to_members(features, net.k, "all"))
+        with policy.per_state_masks(obs.shape[0], state_seeds):
+            if hasattr(net, "policy_tower"):
+                x = net.policy_tower[:-1](to_members(features, net.k, "all"))
+            else:
+                x = net.trunk(to_members(features, net.k, "all"))
         return x.mean(0)
     if not policy.share_features_extractor:
         features = features[0]
@@ -120,12 +171,14 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
     """
     if not isinstance(policy, MemberActorCriticPolicy):
         raise ValueError("act_with_uncertainty needs a member policy; a baseline has no member-based uncertainty")
+    observation, vectorized = check_observations(policy, observation, single_ok=True, what="observation")
     if policy.training:
         policy.set_training_mode(False)
-    tensor, vectorized = policy.obs_to_tensor(observation)
+    tensor, _ = policy.obs_to_tensor(observation)
     with th.no_grad():
         pi, vf = policy.member_outputs_from_tensor(tensor)
-        actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic).cpu().numpy()
+        actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
+                                  **policy.inference_options).cpu().numpy()
     actions = actions.reshape((-1, *policy.action_space.shape))
     if isinstance(policy.action_space, spaces.Box):
         actions = np.clip(actions, policy.action_space.low, policy.action_space.high)

@@ -185,3 +185,14 @@ def test_bad_arguments(head_root):
         load_atari_head_states(root, "Seaquest", 0, np.random.default_rng(0))
     with pytest.raises(ValueError, match="frame_skip=0"):
         load_atari_head_states(root, "Seaquest", 1, np.random.default_rng(0), frame_skip=0)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "not bzip2"])
+def test_corrupt_archive_is_named(head_root, damage):
+    root, _ = head_root
+    archive = root / "seaquest" / "100_RZ_3592991_Aug-24-11-44-38.tar.bz2"
+    data = archive.read_bytes()
+    archive.write_bytes(data[: len(data) // 2] if damage == "truncated" else b"PK\x03\x04 a zip, say")
+    with pytest.raises(ValueError, match=f"Atari-HEAD archive {archive} is corrupt or not a .tar.bz2") as err:
+        load_atari_head_states(root, "Seaquest", 17, np.random.default_rng(0))  # every state: both trials are read
+    assert "\n" not in str(err.value)

@@ -96,6 +96,28 @@ def test_main_text_variant_gives_configs_times_steps(cheetah):
         collect_mujoco_ood_states(cheetah, ENV, action_mode=SAMPLED, seed=0, configs=3)
 
 
+def test_main_text_protocol_is_the_default_and_id_states_follow_it(cheetah):
+    from paper_lib.ood.collect import ID_MAIN_PROTOCOL, _protocol
+
+    assert _protocol(None, None, None) == (5000, 100, "main")
+    assert _protocol(None, None, None, ID_MAIN_PROTOCOL) == (2000, 100, "main")
+    assert _protocol(300, None, None) == (300, None, "appendix")
+    data = collect_id_states(cheetah, ENV, action_mode=SAMPLED, seed=0, episodes=3, steps_per_episode=20, **SHORT)
+    # 20 states per run need two 15-state episodes of the same env seed: 3 runs, 6 episodes
+    assert len(data) == 60 and len(np.unique(data.episode)) == 6 and data.step.min() >= 5
+    assert data.metadata["protocol"] == {"name": "id_main", "n_states": 60, "max_episode_steps": 20, "skip_first": 5,
+                                         "episodes": 3, "steps_per_episode": 20}
+    with pytest.raises(ValueError, match="give both"):
+        collect_id_states(cheetah, ENV, action_mode=SAMPLED, seed=0, episodes=3)
+
+
+def test_scoring_is_seeded(cheetah, id_states):
+    mc = make_agent("ppo", "mc_dropconnect", ENV, seed=0, overrides=dict(TINY))
+    a, b = score_dataset(mc, id_states), score_dataset(mc, id_states)
+    assert a.equals(b)
+    assert not np.allclose(score_dataset(mc, id_states, seed=1)["value_std"], a["value_std"])
+
+
 def test_action_mode_is_applied_and_recorded(cheetah):
     runs = {}
     for member in (0, 1):

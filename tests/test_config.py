@@ -104,3 +104,35 @@ def test_normalized_run_saves_and_reloads_its_observation_statistics(tmp_path):
     (out / "vecnormalize.pkl").unlink()
     with pytest.raises(FileNotFoundError, match="vecnormalize.pkl is missing"):
         load_checkpoint(out, "Walker2d-v5", "masksembles", 0)
+
+
+def test_committed_checkpoints_pass_the_identity_checks():
+    """The checks read model.zip's own policy and algorithm: the real checkpoints must satisfy them."""
+    cfg = load_run_config(REPO / "params.yaml")
+    checked = 0
+    for env_id, method, seed in cfg.runs():
+        folder = cfg.checkpoint_dir(env_id, method, seed)
+        if (folder / "model.zip").is_file():
+            ckpt = load_checkpoint(folder, env_id, method, seed)
+            assert (ckpt.vecnormalize_path is not None) == bool(ckpt.config.get("normalize_obs"))
+            checked += 1
+    assert checked > 0, "the active profile has committed checkpoints"
+
+
+def test_each_algorithm_is_recognized_from_its_own_zip(tmp_path):
+    """SB3 saves attributes, not the class: PPO, A2C and TRPO zips are told apart by their settings."""
+    from paper_lib import make_agent
+
+    overrides = {"ppo": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}, "a2c": {"n_steps": 8},
+                 "trpo": {"n_steps": 16, "batch_size": 32}}
+    for algo, settings in overrides.items():
+        folder = tmp_path / algo
+        folder.mkdir()
+        model = make_agent(algo, "ensemble", "CartPole-v1", 0, overrides=settings)
+        model.save(folder / "model.zip")
+        (folder / "config.json").write_text(json.dumps(model.paper_lib_config))
+        assert type(load_checkpoint(folder, "CartPole-v1", "ensemble", 0).model) is type(model)
+        for other in set(overrides) - {algo}:
+            (folder / "config.json").write_text(json.dumps({**model.paper_lib_config, "algo": other}))
+            with pytest.raises(ValueError, match=f"algorithm '{algo}' \\(config.json: '{other}'\\)"):
+                load_checkpoint(folder, "CartPole-v1", "ensemble", 0)

@@ -96,3 +96,16 @@ def test_split_fit_eval_errors():
         split_fit_eval(1, np.random.default_rng(0))
     with pytest.raises(ValueError, match="numpy Generator"):
         split_fit_eval(10, 0)
+
+
+def test_split_by_episodes_keeps_whole_episodes_on_one_side():
+    episodes = np.repeat(np.arange(10), [5, 3, 8, 4, 6, 5, 5, 2, 7, 5])
+    fit_idx, eval_idx = split_fit_eval(len(episodes), np.random.default_rng(0), groups=episodes)
+    assert np.intersect1d(fit_idx, eval_idx).size == 0
+    np.testing.assert_array_equal(np.sort(np.concatenate([fit_idx, eval_idx])), np.arange(len(episodes)))
+    assert np.intersect1d(episodes[fit_idx], episodes[eval_idx]).size == 0, "no episode on both sides"
+    assert len(np.unique(episodes[fit_idx])) == 5
+    with pytest.raises(ValueError, match="at least 2"):
+        split_fit_eval(5, np.random.default_rng(0), groups=np.zeros(5))
+    with pytest.raises(ValueError, match="one label per state"):
+        split_fit_eval(5, np.random.default_rng(0), groups=np.zeros(4))

@@ -241,15 +241,71 @@ def test_inference_modes():
         model.policy.set_inference("median")
 
 
-def test_vote_breaks_ties_at_random():
+def test_deterministic_vote_repeats_itself_on_a_tie():
+    """2 vs 2 votes: the tied action with the higher averaged probability, every call; random ties stay an option."""
     from paper_lib.methods.policy import combine_actions
 
     model = tiny_agent("ensemble", "CartPole-v1")
-    logits = th.tensor([[[5.0, 0.0]], [[5.0, 0.0]], [[0.0, 5.0]], [[0.0, 5.0]]]).repeat(1, 200, 1)  # 2 vs 2
-    actions = combine_actions(logits, model.policy, "vote", None, deterministic=True)
-    assert 0.3 < actions.float().mean() < 0.7
-    logits[3] = th.tensor([5.0, 0.0])  # 3 vs 1
-    assert (combine_actions(logits, model.policy, "vote", None, deterministic=True) == 0).all()
+    logits = th.tensor([[[5.0, 0.0]], [[5.0, 0.0]], [[0.0, 1.0]], [[0.0, 1.0]]]).repeat(1, 200, 1)  # 2 vs 2
+    first = combine_actions(logits, model.policy, "vote", None, deterministic=True)
+    assert (first == 0).all(), "action 0 is tied on votes and more probable on average"
+    logits[:2], logits[2:] = th.tensor([1.0, 0.0]), th.tensor([0.0, 5.0])  # 2 vs 2, action 1 more probable on average
+    assert (combine_actions(logits, model.policy, "vote", None, deterministic=True) == 1).all()
+    random = combine_actions(logits, model.policy, "vote", None, deterministic=True, ties="random")
+    assert 0.3 < random.float().mean() < 0.7
+    logits[3] = th.tensor([5.0, 0.0])  # 3 vs 1: the majority, whatever the probabilities
+    assert (combine_actions(logits, model.policy, "vote", None, deterministic=True, ties="random") == 0).all()
+    # through predict: repeated calls on the same states give the same actions, ties included
+    model.policy.set_inference("vote")
+    obs = np.random.default_rng(0).normal(size=(256, 4)).astype(np.float32)
+    pi, _ = model.policy.member_outputs_from_tensor(th.as_tensor(obs))
+    counts = np.stack([np.bincount(a, minlength=2) for a in pi.argmax(-1).numpy().T])
+    assert (counts[:, 0] == counts[:, 1]).any(), "the test needs states with tied votes"
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+
+
+def test_sampled_discrete_actions_come_from_the_averaged_distribution():
+    """Every member prefers action 0 with p = 0.7: the averaged distribution samples it 70% of the time."""
+    from paper_lib.methods.policy import combine_actions
+
+    model = tiny_agent("ensemble", "CartPole-v1")
+    logits = th.log(th.tensor([0.7, 0.3])).expand(4, 20_000, 2).clone()
+    th.manual_seed(0)
+    for mode in ("vote", "average"):
+        share = (combine_actions(logits, model.policy, mode, None, deterministic=False) == 0).float().mean()
+        assert share.item() == pytest.approx(0.7, abs=0.015), mode
+    votes = combine_actions(logits, model.policy, "vote", None, deterministic=False, vote_sampling="member_votes")
+    # majority of 4 samples, ties by mean probability (action 0): P = 0.7^4 + 4*0.7^3*0.3 + 6*0.7^2*0.3^2 = 0.9163
+    assert (votes == 0).float().mean().item() == pytest.approx(0.9163, abs=0.015)
+
+
+def test_inference_options_are_saved_and_old_checkpoints_load(tmp_path):
+    import zipfile
+
+    model = tiny_agent("ensemble", "CartPole-v1")
+    model.policy.set_inference("vote", ties="random", vote_sampling="member_votes")
+    model.save(tmp_path / "new.zip")
+    loaded = PPO.load(tmp_path / "new.zip")
+    assert loaded.policy.inference == ("vote", None)
+    assert loaded.policy.inference_options == {"ties": "random", "vote_sampling": "member_votes"}
+    # a checkpoint saved before the options existed: its policy state dict lacks both buffers
+    with zipfile.ZipFile(tmp_path / "new.zip") as src, zipfile.ZipFile(tmp_path / "old.zip", "w") as dst:
+        for item in src.infolist():
+            data = src.read(item.filename)
+            if item.filename == "policy.pth":
+                import io
+
+                state = th.load(io.BytesIO(data))
+                for key in ("_inference_ties", "_inference_vote_sampling"):
+                    del state[key]
+                buffer = io.BytesIO()
+                th.save(state, buffer)
+                data = buffer.getvalue()
+            dst.writestr(item, data)
+    old = PPO.load(tmp_path / "old.zip")
+    assert old.policy.inference_options == {"ties": "mean_prob", "vote_sampling": "average"}
+    with pytest.raises(ValueError, match="tie rule"):
+        model.policy.set_inference("vote", ties="coin")
 
 
 def test_continuous_combined_action_is_the_mean_of_member_means():
@@ -271,6 +327,21 @@ def test_uncertainty_shapes_and_baseline_error():
     with pytest.raises(ValueError, match="members"):
         uncertainty(base.policy, np.zeros((3, 4), np.float32), ("value_std",))
     assert uncertainty(tiny_agent("baseline", "HalfCheetah-v5").policy, obs) == {}
+
+
+def test_ensemble_members_start_from_different_weights():
+    from paper_lib.methods.layers import MemberConv2d, MemberLinear
+
+    for ortho in (True, False):
+        linear = MemberLinear(8, 16, k=4, mode="ensemble", ortho_init=ortho)
+        conv = MemberConv2d(4, 8, 3, 1, k=4, mode="ensemble", ortho_init=ortho)
+        for weight in (linear.weight, conv.weight):
+            for a in range(4):
+                for b in range(a + 1, 4):
+                    assert not th.allclose(weight[a], weight[b]), (ortho, a, b)
+    model = tiny_agent("ensemble", "HalfCheetah-v5")
+    first = model.policy.mlp_extractor.policy_tower[0].weight
+    assert all(not th.equal(first[0], first[m]) for m in range(1, 4))
 
 
 def test_mc_methods_sample_members_in_one_pass_and_dropconnect_drops_weights():

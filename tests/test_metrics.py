@@ -132,3 +132,79 @@ def test_metrics_table_errors_name_the_measure():
         metrics_table({}, np.random.default_rng(0))
     with pytest.raises(ValueError, match=r"scores\['policy'\]: ood_scores is empty"):
         metrics_table({"value": ([0.0], [1.0]), "policy": ([0.0], [])}, np.random.default_rng(0), n_boot=10)
+
+
+# ------------------------------------------------------------------------- cluster bootstrap
+
+
+def _tight_clusters(rng, n_clusters=5, size=200):
+    """A few clusters whose states are near-copies: the data holds n_clusters observations, not n_clusters*size."""
+    labels = np.repeat(np.arange(n_clusters), size)
+    id_s = rng.normal(0.0, 1.0, n_clusters)[labels] + rng.normal(0, 0.02, labels.size)
+    ood_s = rng.normal(0.7, 1.0, n_clusters)[labels] + rng.normal(0, 0.02, labels.size)
+    return id_s, ood_s, labels
+
+
+def test_cluster_bootstrap_is_wider_than_the_state_bootstrap_on_tight_clusters():
+    from paper_lib.metrics import cluster_bootstrap_auroc
+
+    id_s, ood_s, labels = _tight_clusters(np.random.default_rng(0))
+    state = bootstrap_auroc_ci(id_s, ood_s, np.random.default_rng(1), n_boot=500)
+    cluster = cluster_bootstrap_auroc(id_s, ood_s, np.char.add("episode", labels.astype(str)),
+                                      np.char.add("config", labels.astype(str)), np.random.default_rng(1), n_boot=500)
+    assert cluster.high - cluster.low > 3 * (state[1] - state[0])
+    assert cluster.low <= detection_metrics(id_s, ood_s)["auroc"] <= cluster.high
+    assert cluster.replicates.shape == (500,)
+    # every state its own cluster: the state bootstrap again (same distribution of replicates)
+    own = cluster_bootstrap_auroc(id_s, ood_s, None, None, np.random.default_rng(2), n_boot=500)
+    assert own.low == pytest.approx(state[0], abs=0.01) and own.high == pytest.approx(state[1], abs=0.01)
+
+
+def test_weighted_auroc_matches_sklearn_with_sample_weights():
+    from sklearn.metrics import roc_auc_score
+
+    from paper_lib.metrics import _weighted_aurocs
+
+    rng = np.random.default_rng(0)
+    id_s, ood_s = np.round(rng.normal(0, 1, 50), 1), np.round(rng.normal(0.5, 1, 40), 1)  # with ties
+    w_id, w_ood = rng.integers(0, 4, (6, 50)).astype(float), rng.integers(1, 4, (6, 40)).astype(float)
+    w_id[:, 0] += 1
+    y = np.r_[np.zeros(50), np.ones(40)]
+    expected = [roc_auc_score(y, np.r_[id_s, ood_s], sample_weight=np.r_[a, b]) for a, b in zip(w_id, w_ood)]
+    np.testing.assert_allclose(_weighted_aurocs(id_s, ood_s, w_id, w_ood), expected, atol=1e-12)
+
+
+def test_shared_clusters_are_resampled_together():
+    """Noise OOD states made from ID episode e share e's label: one draw moves both sides."""
+    from paper_lib.metrics import cluster_bootstrap_auroc
+
+    labels = np.repeat(["e0", "e1", "e2"], 10)
+    id_s = np.repeat([0.0, 1.0, 2.0], 10)
+    ood_s = id_s + 0.5  # each OOD state just above its own ID state: AUROC 6/9 on the full sample
+    reps = cluster_bootstrap_auroc(id_s, ood_s, labels, labels, np.random.default_rng(0), n_boot=300).replicates
+    # a replicate that drew only one episode (3 times) compares that episode with itself: AUROC exactly 1
+    assert (reps == 1.0).any() and reps.min() >= 0.5
+
+
+def test_seed_cluster_ci_resamples_seeds_then_clusters():
+    from paper_lib.metrics import seed_cluster_ci
+
+    rng = np.random.default_rng(0)
+    reps = [rng.normal(mean, 0.01, 1000) for mean in (0.6, 0.7, 0.8)]
+    low, high = seed_cluster_ci(reps, np.random.default_rng(1), n_boot=2000)
+    assert 0.6 < low < 0.7 < high < 0.8  # the spread between seeds dominates
+    assert seed_cluster_ci(reps[:1], rng) == tuple(np.quantile(reps[0], [0.025, 0.975]))
+    with pytest.raises(ValueError, match="one per training seed"):
+        seed_cluster_ci([], rng)
+
+
+def test_metrics_over_scoring_seeds_report_their_spread():
+    from paper_lib.metrics import measure_metrics
+
+    rng = np.random.default_rng(0)
+    id_s, ood_s = rng.normal(0, 1, (3, 100)), rng.normal(0.5, 1, (3, 80))  # 3 scoring seeds
+    row, reps = measure_metrics(id_s, ood_s, np.random.default_rng(1), n_boot=100)
+    per_seed = [detection_metrics(i, o)["auroc"] for i, o in zip(id_s, ood_s)]
+    assert row["auroc"] == pytest.approx(np.mean(per_seed))
+    assert row["auroc_scoring_min"] == min(per_seed) and row["auroc_scoring_max"] == max(per_seed)
+    assert row["n_scoring_seeds"] == 3 and row["ci"] == "state" and reps.shape == (100,)

@@ -261,3 +261,50 @@ def test_stable_sampling_reports_each_rejection_and_gives_up():
                 "Ant-v5", np.random.default_rng(0), ranges, probe_steps=20, max_tries=3, kinds=["wind"]
             )
     assert len([w for w in record if w.category is UnstablePerturbationWarning]) == 3
+
+
+# ----------------------------------------------------------------------- physical ranges
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"friction_scale": 1e6},
+        {"gravity": (0.0, 0.0, 50.0)},  # upwards
+        {"gravity": (0.0, 0.0, -9.81)},  # stronger than the paper's 0.5-4 m/s^2
+        {"geometry_scales": {"bthigh": 50.0}},
+        {"wind": (0.0, 3.0, 0.0), "density": 1.2},
+        {"density": 1000.0},
+    ],
+)
+def test_values_outside_the_papers_ranges_need_the_explicit_flag(kwargs):
+    with pytest.raises(ValueError, match="leaves the paper's ranges.*outside_ranges=True"):
+        PerturbationConfig("HalfCheetah-v5", **kwargs)
+    config = PerturbationConfig("HalfCheetah-v5", **kwargs, outside_ranges=True)
+    assert json.loads(config.to_json())["outside_ranges"] is True
+    assert PerturbationConfig.from_json(config.to_json()) == config
+
+
+def test_draws_from_wider_ranges_are_flagged_and_paper_draws_are_not():
+    wide = PerturbationRanges(friction_scale=(100.0, 1000.0))
+    config = sample_config("HalfCheetah-v5", np.random.default_rng(0), wide, kinds=["friction"])
+    assert config.outside_ranges and PerturbationConfig.from_json(config.to_json()) == config
+    paper = sample_config("HalfCheetah-v5", np.random.default_rng(0), kinds=["friction"])
+    assert not paper.outside_ranges and "outside_ranges" not in json.loads(paper.to_json())
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ('{"env_id": "Ant-v5", "gravity": 2.0}', "gravity must be a list of 3 numbers"),
+        ('{"env_id": "Ant-v5", "wind": "east"}', "wind must be a list of 3 numbers"),
+        ('{"env_id": "Ant-v5", "friction_scale": "2"}', "friction_scale='2': must be a finite number"),
+        ('{"env_id": "Ant-v5", "geometry_scales": {"back_leg": "x2"}}', "must be a finite number"),
+        ('{"env_id": "Ant-v5", "seed": 1.5}', "seed=1.5: must be an integer"),
+        ('{"env_id": "Ant-v5", "gravity": [0, 0,', "not valid JSON"),
+        ('["Ant-v5"]', "Not a PerturbationConfig JSON object"),
+    ],
+)
+def test_json_type_errors_name_the_field(text, match):
+    with pytest.raises(ValueError, match=match):
+        PerturbationConfig.from_json(text)

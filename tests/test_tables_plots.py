@@ -206,3 +206,86 @@ def test_save_figure_writes_identical_png_and_pdf(tmp_path):
     assert second["png"].read_bytes() == png
     assert second["pdf"].read_bytes() == pdf
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == ["roc.pdf", "roc.png"]
+
+
+def test_timeline_and_image_grid():
+    df = pd.DataFrame({"step": np.tile(np.arange(6), 3), "score": np.arange(18.0) / 18,
+                       "measure": np.repeat(["value_std", "knn_obs", "policy_std"], 6),
+                       "panel": np.repeat(["members", "member-free", "members"], 6)})
+    fig = plots.timeline(df, event_step=2.5, reference=0.95)
+    assert [ax.get_title() for ax in fig.axes] == ["members", "member-free"]
+    lines = _data_lines(fig.axes[0])
+    assert len(lines) == 2 + 2  # two measures, the event line, the reference line
+    assert any(list(ln.get_xdata()) == [2.5, 2.5] and ln.get_color() == "red" for ln in lines)
+    images = [np.zeros((4, 6, 3), dtype=np.uint8), np.full((4, 6), 255, dtype=np.uint8), np.zeros((4, 6), np.uint8)]
+    fig = plots.image_grid(images, ["a", "b", "c"], ncols=2)
+    shown = [ax for ax in fig.axes if ax.images]
+    assert len(fig.axes) == 4 and len(shown) == 3 and [ax.get_title() for ax in shown] == ["a", "b", "c"]
+    with pytest.raises(ValueError, match="one title per image"):
+        plots.image_grid(images, ["a"])
+
+
+def test_show_figure_displays_the_saved_png(tmp_path, monkeypatch):
+    shown = []
+    monkeypatch.setattr("IPython.display.display", lambda obj: shown.append(obj))
+    plots.show_figure(plots.roc_curves(_roc_df()), tmp_path / "roc")
+    assert shown[0].data == (tmp_path / "roc.png").read_bytes()
+    plots.show_figure(plots.roc_curves(_roc_df()))  # no stem: shown, not saved
+    assert shown[1].data[:8] == b"\x89PNG\r\n\x1a\n" and sorted(p.name for p in tmp_path.iterdir()) == ["roc.pdf", "roc.png"]
+    with pytest.raises(ValueError, match="matplotlib Figure"):
+        plots.show_figure("not a figure")
+
+
+# ---------------------------------------------------------------- report helpers for partial profiles
+def test_seeds_per_cell_and_coverage_captions():
+    from types import SimpleNamespace
+
+    from paper_lib import report
+
+    df = pd.DataFrame({"env": ["A", "A", "A", "B"], "method": ["m", "m", "n", "m"], "seed": [0, 1, 0, 0]})
+    assert report.seeds_per_cell(df[df.env == "B"], ["env", "method"]) == "1 seed per cell"
+    assert report.seeds_per_cell(df.assign(seed=[0, 1, 0, 1]).iloc[:2], ["env", "method"]) == "2 seeds per cell"
+    assert report.seeds_per_cell(df, ["env", "method"]) == "seeds per cell: A 1 to 2, B 1"
+    cfg = SimpleNamespace(profile="p", runs=lambda: [("A", m, s) for m in ("m", "n") for s in (0, 1)])
+    assert report.coverage(cfg, cfg.runs()) == "profile 'p': all 4 runs"
+    assert report.coverage(cfg, [("A", "m", 0)]).startswith("profile 'p': 1 of its 4 runs (the missing ones")
+    assert report.coverage(cfg, [("A", "m", 0), ("A", "m", 1)], ["m"]) == "profile 'p': all 2 m runs"
+
+
+def test_reward_table_marks_cells_with_fewer_seeds():
+    from paper_lib.report import reward_table
+
+    summary = pd.DataFrame({"env": ["A", "A"], "method": ["baseline", "masksembles"], "inference": ["single", "combined"],
+                            "deterministic": [True, True], "mean": [10.0, 8.0], "std": [1.0, 2.0], "n_seeds": [3, 1]})
+    table = reward_table(summary, ["baseline", "masksembles"])
+    assert list(table["A"]) == ["10.0 ± 1.0 (n=3)", "8.0 ± 2.0 (n=1)"]
+    assert list(reward_table(summary.assign(n_seeds=3), ["baseline", "masksembles"])["A"]) == ["10.0 ± 1.0", "8.0 ± 2.0"]
+
+
+def test_roc_on_grid_is_the_reachable_tpr():
+    from paper_lib.metrics import roc_points
+    from paper_lib.run_results import roc_on_grid
+
+    rng = np.random.default_rng(0)
+    id_s, ood_s = rng.normal(0, 1, 300), rng.normal(1, 1, 200)
+    roc = roc_points(id_s, ood_s).assign(measure="m", ood_set="perturbed")
+    grid = roc_on_grid(roc, np.array([0.0, 0.1, 0.5, 1.0]))
+    for fpr, tpr in zip(grid["fpr"], grid["tpr"]):  # the best TPR of any threshold whose FPR is at most fpr
+        thresholds = np.concatenate([[np.inf], np.sort(np.concatenate([id_s, ood_s]))[::-1]])
+        best = max((ood_s >= t).mean() for t in thresholds if (id_s >= t).mean() <= fpr)
+        assert tpr == pytest.approx(best)
+    assert list(grid["tpr"]) == sorted(grid["tpr"]) and grid["tpr"].iloc[-1] == 1.0
+
+
+def test_protocol_note_describes_the_states_as_collected():
+    from paper_lib.report import protocol_note
+
+    rows = [{"ood_set": o, "env": e, "method": "m", "seed": 0, "protocol": p, "actions": "sampled actions, vote inference",
+             "n_ood": n, "n_ood_clusters": c, "n_id": 1000, "n_id_clusters": 10}
+            for e, p, n, c in (("A", "main", 5000, 50), ("B", "appendix", 2000, 5)) for o in ("perturbed", "noise")]
+    note = protocol_note(pd.DataFrame(rows))
+    assert note == ("states as collected: main-text protocol (section 5) with sampled actions, vote inference for 1 run: "
+                    "5000 OOD states from 50 configurations and 1000 held-out ID states from 10 episodes per run; "
+                    "appendix G protocol with sampled actions, vote inference for 1 run: 2000 OOD states from 5 "
+                    "configurations and 1000 held-out ID states from 10 episodes per run")
+    assert protocol_note(pd.DataFrame(rows).drop(columns="protocol")) == "collection protocol not recorded"

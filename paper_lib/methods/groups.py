@@ -13,8 +13,16 @@ MEMBER_TAG = "paper_lib_member"
 
 def check_member_layout(n_envs: int, n_members: int, batch_size: int | None = None, n_steps: int | None = None) -> None:
     """Raise one clear error when the envs or minibatches cannot be split evenly over members."""
+    for name, value in (("n_envs", n_envs), ("n_members", n_members), ("batch_size", batch_size), ("n_steps", n_steps)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
+            raise ValueError(f"{name}={value!r} must be an integer")
     if n_members < 2:
         raise ValueError(f"n_members={n_members}: member methods need k >= 2")
+    if n_envs < n_members:
+        raise ValueError(f"n_envs={n_envs} is fewer than n_members={n_members}; each member needs its own env group: "
+                         f"use a positive multiple of {n_members}, e.g. n_envs={2 * n_members}")
+    if batch_size is not None and batch_size < 1 or n_steps is not None and n_steps < 1:
+        raise ValueError(f"batch_size={batch_size} and n_steps={n_steps} must be positive integers")
     if n_envs % n_members:
         raise ValueError(f"n_envs={n_envs} is not a multiple of n_members={n_members}; each member needs an equal env group")
     if batch_size is not None:

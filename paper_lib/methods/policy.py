@@ -8,10 +8,15 @@ This class only adds what SB3 cannot know about:
 - a truncated episode's bootstrap value comes from the member of that episode's env group,
   which `MemberGroupVecEnv` tags onto the terminal observation;
 - `member_outputs` returns all k members' raw outputs for uncertainty and analysis.
+
+The inference paths (`_predict`, `member_outputs_from_tensor`) draw MC masks per (member,
+state); the training paths (`forward`, `evaluate_actions`, the tagged `predict_values`) keep
+one mask per member per pass and are untouched, so training numerics do not depend on them.
 """
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import numpy as np
@@ -24,9 +29,23 @@ from stable_baselines3.common.preprocessing import is_image_space
 from torch import nn
 
 from paper_lib.methods.groups import MEMBER_TAG
+from paper_lib.methods.layers import has_stochastic_layers, per_state_masks
 from paper_lib.methods.networks import MemberActorCritic, MemberMLP, MemberNatureCNN, MemberSpec
 
 INFERENCE_MODES = ("vote", "average", "single")
+#: How a deterministic vote picks among actions with equally many votes: the tied action with
+#: the highest averaged probability (repeatable; default), or one at random (the paper's text).
+TIE_RULES = ("mean_prob", "random")
+#: What a sampled (deterministic=False) discrete vote does: sample from the members' averaged
+#: distribution (the paper's Table 1; default), or take the majority of each member's own sample.
+VOTE_SAMPLING = ("average", "member_votes")
+#: Largest per-state seed; seeds are drawn from torch's RNG (or a seeded generator) below it.
+_SEED_BOUND = 2**62
+
+
+def draw_state_seeds(n: int, generator: th.Generator | None = None) -> np.ndarray:
+    """One seed per state for `per_state_masks`, from torch's global RNG unless a generator is given."""
+    return th.randint(0, _SEED_BOUND, (n,), generator=generator).numpy()
 
 
 class ImagePassthrough(BaseFeaturesExtractor):
@@ -50,6 +69,8 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
     :param member_seed: seeds the Masksembles masks, so a run's masks follow from its seed
     :param inference: "vote", "average" or "single" (changeable later with `set_inference`)
     :param inference_member: the member used by "single" inference, or None for a random one
+    :param inference_ties: a deterministic vote's tie rule, one of TIE_RULES
+    :param inference_vote_sampling: a sampled discrete vote's rule, one of VOTE_SAMPLING
     """
 
     def __init__(
@@ -65,6 +86,8 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         member_seed: int = 0,
         inference: str = "vote",
         inference_member: int | None = None,
+        inference_ties: str = "mean_prob",
+        inference_vote_sampling: str = "average",
         activation_fn: type[nn.Module] = nn.Tanh,
         **kwargs: Any,
     ):
@@ -81,7 +104,11 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
             raise ValueError("gSDE is not supported by member policies; pass use_sde=False")
         self.register_buffer("_inference_mode", th.tensor(0))
         self.register_buffer("_inference_member", th.tensor(-1))
-        self.set_inference(inference, inference_member)
+        self.register_buffer("_inference_ties", th.tensor(0))
+        self.register_buffer("_inference_vote_sampling", th.tensor(0))
+        # checkpoints saved before the last two buffers existed load with the defaults
+        self.register_load_state_dict_pre_hook(_default_inference_options)
+        self.set_inference(inference, inference_member, ties=inference_ties, vote_sampling=inference_vote_sampling)
 
     # --- construction --------------------------------------------------------------------
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -113,31 +140,68 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     # --- inference mode ------------------------------------------------------------------
-    def set_inference(self, mode: str, member: int | None = None) -> None:
-        """Choose how `predict` turns k members into one action; saved with the model."""
+    def set_inference(self, mode: str, member: int | None = None, *, ties: str | None = None,
+                      vote_sampling: str | None = None) -> None:
+        """Choose how `predict` turns k members into one action; saved with the model.
+
+        `ties` (TIE_RULES) and `vote_sampling` (VOTE_SAMPLING) refine discrete `vote`; None
+        keeps their current setting.
+        """
         if mode not in INFERENCE_MODES:
             raise ValueError(f"unknown inference mode {mode!r}; use one of {INFERENCE_MODES}")
         if member is not None and not 0 <= member < self.n_members:
             raise ValueError(f"inference_member={member} is not in [0, {self.n_members - 1}]")
+        if ties is not None and ties not in TIE_RULES:
+            raise ValueError(f"unknown tie rule {ties!r}; use one of {TIE_RULES}")
+        if vote_sampling is not None and vote_sampling not in VOTE_SAMPLING:
+            raise ValueError(f"unknown vote sampling {vote_sampling!r}; use one of {VOTE_SAMPLING}")
         self._inference_mode.fill_(INFERENCE_MODES.index(mode))
         self._inference_member.fill_(-1 if member is None else member)
+        if ties is not None:
+            self._inference_ties.fill_(TIE_RULES.index(ties))
+        if vote_sampling is not None:
+            self._inference_vote_sampling.fill_(VOTE_SAMPLING.index(vote_sampling))
 
     @property
     def inference(self) -> tuple[str, int | None]:
         member = int(self._inference_member)
         return INFERENCE_MODES[int(self._inference_mode)], (None if member < 0 else member)
 
+    @property
+    def inference_options(self) -> dict[str, str]:
+        """The discrete vote's tie rule and sampling rule, as `combine_actions` takes them."""
+        return {"ties": TIE_RULES[int(self._inference_ties)],
+                "vote_sampling": VOTE_SAMPLING[int(self._inference_vote_sampling)]}
+
     # --- member outputs ------------------------------------------------------------------
-    def member_outputs_from_tensor(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """All k members on every state, one batched pass: (k, N, A) action params and (k, N) values."""
+    def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None
+                                   ) -> tuple[th.Tensor, th.Tensor]:
+        """All k members on every state, one batched pass: (k, N, A) action params and (k, N) values.
+
+        MC methods draw their masks per (member, state), from `state_seeds` (one per state) or,
+        when None, from seeds drawn from torch's RNG.
+        """
         features = self.extract_features(obs)
-        pi, vf = self.mlp_extractor.members(features, "all")
+        with self.per_state_masks(obs.shape[0], state_seeds):
+            pi, vf = self.mlp_extractor.members(features, "all")
         return pi, vf.squeeze(-1)
+
+    @property
+    def samples_members(self) -> bool:
+        """Whether the members are MC samples (MC Dropout / DropConnect), so outputs depend on a seed."""
+        return has_stochastic_layers(self.mlp_extractor)
+
+    def per_state_masks(self, n_states: int, state_seeds: np.ndarray | None = None):
+        """Context in which the member network samples per (member, state); nothing to do without MC layers."""
+        if not self.samples_members:
+            return contextlib.nullcontext()
+        return per_state_masks(self.mlp_extractor, draw_state_seeds(n_states) if state_seeds is None else state_seeds)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
         features = self.extract_features(observation)
-        pi, _ = self.mlp_extractor.members(features, "all", critic=False)
-        return combine_actions(pi, self, *self.inference, deterministic=deterministic)
+        with self.per_state_masks(observation.shape[0]):
+            pi, _ = self.mlp_extractor.members(features, "all", critic=False)
+        return combine_actions(pi, self, *self.inference, deterministic=deterministic, **self.inference_options)
 
     # --- truncated-episode bootstrap ----------------------------------------------------
     def obs_to_tensor(self, observation):
@@ -157,8 +221,15 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
 
 
 def combine_actions(pi: th.Tensor, policy: ActorCriticPolicy, mode: str, member: int | None,
-                    deterministic: bool) -> th.Tensor:
-    """Turn the k members' action parameters (k, N, A) into N actions (paper section 4.2)."""
+                    deterministic: bool, ties: str = "mean_prob", vote_sampling: str = "average") -> th.Tensor:
+    """Turn the k members' action parameters (k, N, A) into N actions (paper section 4.2).
+
+    Continuous actions (vote and average alike): the mean of the members' means, or a sample
+    around it with the policy's std. Discrete `average`: the argmax of, or a sample from, the
+    averaged distribution. Discrete `vote`, deterministic: the majority of the members' argmax
+    actions, ties broken by `ties`; sampled: a sample from the averaged distribution (the
+    paper's Table 1), or with vote_sampling="member_votes" the majority of each member's sample.
+    """
     dist = policy.action_dist
     if mode == "single":
         m = int(th.randint(pi.shape[0], ())) if member is None else member
@@ -166,13 +237,21 @@ def combine_actions(pi: th.Tensor, policy: ActorCriticPolicy, mode: str, member:
     if isinstance(dist, DiagGaussianDistribution):  # continuous: vote and average both average the means
         return _distribution(dist, pi.mean(0), policy).get_actions(deterministic=deterministic)
     assert isinstance(dist, CategoricalDistribution)
-    if mode == "average":
-        probs = th.softmax(pi, -1).mean(0)
+    probs = th.softmax(pi, -1).mean(0)
+    if mode == "average" or (not deterministic and vote_sampling == "average"):
         return probs.argmax(-1) if deterministic else th.multinomial(probs, 1).squeeze(-1)
-    # vote: each member's action (argmax, or a sample when stochastic), majority, random ties
     member_actions = pi.argmax(-1) if deterministic else th.distributions.Categorical(logits=pi).sample()
     counts = nn.functional.one_hot(member_actions, pi.shape[-1]).sum(0).float()
-    return (counts + 0.5 * th.rand_like(counts)).argmax(-1)
+    if ties == "random":
+        return (counts + 0.5 * th.rand_like(counts)).argmax(-1)
+    tied = counts == counts.max(-1, keepdim=True).values
+    return th.where(tied, probs, th.full_like(probs, -1.0)).argmax(-1)  # the tied action most probable on average
+
+
+def _default_inference_options(module: nn.Module, state_dict: dict, prefix: str, *args: Any) -> None:
+    """Load-time hook: a checkpoint from before the tie and vote-sampling options gets their defaults."""
+    for name in ("_inference_ties", "_inference_vote_sampling"):
+        state_dict.setdefault(prefix + name, th.tensor(0))
 
 
 def _distribution(dist, params: th.Tensor, policy: ActorCriticPolicy):

@@ -124,7 +124,7 @@ OOD_SOURCE_NOTES: dict[str, str] = {
 
 
 def _check_game(game: str) -> None:
-    if game not in ATARI_GAMES:
+    if not isinstance(game, str) or game not in ATARI_GAMES:
         raise ValueError(f"Unknown Atari game {game!r}: use one of {list(ATARI_GAMES)} (no 'NoFrameskip-v4').")
 
 
@@ -144,7 +144,7 @@ def ood_sources(game: str) -> list[str]:
 def source_values(game: str, source: str) -> tuple[int, ...]:
     """Valid ``value`` settings of a source."""
     _check_game(game)
-    if source not in _SOURCES[game]:
+    if not isinstance(source, str) or source not in _SOURCES[game]:
         raise ValueError(f"Unknown OOD source {source!r} for {game}: use one of {ood_sources(game)}.")
     return _SOURCES[game][source].values
 
@@ -186,6 +186,8 @@ class AtariOODConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> AtariOODConfig:
         fields = {f.name for f in dataclasses.fields(cls)}
+        if not isinstance(data, dict):
+            raise ValueError(f"AtariOODConfig: expected an object with keys {sorted(fields)}, got {data!r}.")
         unknown = set(data) - fields
         missing = {"game", "source", "value"} - set(data)
         if unknown or missing:
@@ -195,7 +197,11 @@ class AtariOODConfig:
 
     @classmethod
     def from_json(cls, text: str) -> AtariOODConfig:
-        return cls.from_dict(json.loads(text))
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, TypeError) as err:
+            raise ValueError(f"AtariOODConfig JSON is not valid JSON ({err}): {str(text)[:200]!r}") from None
+        return cls.from_dict(data)
 
 
 def sample_atari_config(game: str, rng: np.random.Generator, source: str | None = None) -> AtariOODConfig:

@@ -70,7 +70,10 @@ def read_labels(path: str | Path) -> list[FrameLabel]:
     if not path.is_file():
         raise FileNotFoundError(f"Atari-HEAD label file {path} does not exist: each <trial>.tar.bz2 needs "
                                 f"a <trial>.txt beside it.")
-    lines = path.read_text().splitlines()
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError as err:
+        raise ValueError(f"Atari-HEAD label file {path} is not a text file ({err}); copy it again.") from None
     header = tuple(h.strip() for h in lines[0].split(",")) if lines else ()
     if header != LABEL_HEADER:
         raise ValueError(f"Malformed header in {path}: got {list(header)}, expected {list(LABEL_HEADER)}.")
@@ -147,17 +150,21 @@ def _state_rows(start: int, step: int, frame_skip: int) -> list[list[int]]:
 def _read_frames(archive: Path, wanted: set[str]) -> dict[str, np.ndarray]:
     """RGB frames of ``archive`` whose file stem is in ``wanted`` (one pass over the bz2 stream)."""
     frames: dict[str, np.ndarray] = {}
-    with tarfile.open(archive, "r:bz2") as tar:
-        for member in tar:
-            stem = PurePosixPath(member.name).stem
-            if not member.isfile() or stem not in wanted or not member.name.endswith(".png"):
-                continue
-            data = tar.extractfile(member).read()
-            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-            if bgr is None or bgr.shape != FRAME_SHAPE:
-                got = None if bgr is None else bgr.shape
-                raise ValueError(f"{archive}:{member.name} is not a {FRAME_SHAPE} RGB PNG (got {got}).")
-            frames[stem] = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    try:
+        with tarfile.open(archive, "r:bz2") as tar:
+            for member in tar:
+                stem = PurePosixPath(member.name).stem
+                if not member.isfile() or stem not in wanted or not member.name.endswith(".png"):
+                    continue
+                data = tar.extractfile(member).read()
+                bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+                if bgr is None or bgr.shape != FRAME_SHAPE:
+                    got = None if bgr is None else bgr.shape
+                    raise ValueError(f"{archive}:{member.name} is not a {FRAME_SHAPE} RGB PNG (got {got}).")
+                frames[stem] = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    except (tarfile.TarError, EOFError, OSError) as err:  # truncated download, not bzip2, not a tar
+        raise ValueError(f"Atari-HEAD archive {archive} is corrupt or not a .tar.bz2 ({type(err).__name__}: {err}); "
+                         f"copy it again from the data set.") from None
     missing = sorted(wanted - set(frames))
     if missing:
         raise ValueError(f"{len(missing)} frames of the label file are missing from {archive}, e.g. "

@@ -5,11 +5,13 @@ Protocol (one loop for ID and OOD, so the two samples are comparable by construc
   (s_0 = the reset observation ... s_{T-1}; a terminal observation is never kept);
 - the first ``skip_first`` states of every episode are dropped: perturbed physics acts
   only once the agent moves, so early OOD states look like ID ones (appendix G);
-- appendix protocol (default): a NEW configuration at every restart (episode end or step
-  limit), until ``n_states`` states; main-text protocol: ``configs=50, steps_per_config=100``,
-  each configuration gives exactly ``steps_per_config`` states (restarting inside the same
-  configuration if an episode ends early), 50 x 100 = 5000 states;
-- ID states: the same loop in the unmodified env, each episode with a fresh env seed.
+- main-text protocol (section 5, the default): ``configs=50, steps_per_config=100``, each
+  configuration gives exactly ``steps_per_config`` states (restarting inside the same
+  configuration if an episode ends early), 50 x 100 = 5000 states; ID states likewise:
+  ``episodes=20, steps_per_episode=100``, each from a fresh env seed (``ID_MAIN_PROTOCOL``).
+  Many short clusters are what lets a cluster bootstrap give a useful interval;
+- appendix G's protocol (pass ``n_states``): a NEW configuration (ID: env seed) at every
+  restart (episode end or step limit), until ``n_states`` states.
 
 The agent acts with one ``ActionMode`` (deterministic or sampled; how members combine),
 applied to the policy and recorded in the dataset's metadata. A configuration whose rollout
@@ -53,8 +55,10 @@ from paper_lib.ood.mujoco import (
 from paper_lib.ood.pixels import PIXEL_PERTURBATIONS, noise_ood, perturb_pixels
 from paper_lib.uncertainty import uncertainty
 
-#: The main-text variant: ``collect_mujoco_ood_states(..., **MAIN_TEXT_PROTOCOL)``.
+#: The main text's OOD protocol (the default): ``collect_mujoco_ood_states(..., **MAIN_TEXT_PROTOCOL)``.
 MAIN_TEXT_PROTOCOL: dict[str, int] = {"configs": 50, "steps_per_config": 100}
+#: Its ID counterpart (the default of ``collect_id_states``): as many states per episode as per configuration.
+ID_MAIN_PROTOCOL: dict[str, int] = {"episodes": 20, "steps_per_episode": 100}
 #: Give up after this many configurations in a row went unstable (the ranges are too wide).
 MAX_UNSTABLE_IN_A_ROW = 20
 #: Give up after this many episodes in a row ended before ``skip_first`` (nothing to keep).
@@ -335,20 +339,28 @@ def _collect(actor: _Actor, next_run: Callable[[], _Run], n_states: int, steps_p
     return buffer, rejected
 
 
-def _protocol(n_states: int | None, configs: int | None, steps_per_config: int | None) -> tuple[int, str]:
-    """(n_states, protocol name): the appendix protocol, or the main text's configs x steps."""
+def _protocol(n_states: int | None, configs: int | None, steps_per_config: int | None,
+              default: dict[str, int] = MAIN_TEXT_PROTOCOL) -> tuple[int, int | None, str]:
+    """(n_states, steps per cluster or None, protocol name) from the arguments.
+
+    Nothing given: the main text's protocol (``default``); ``n_states`` alone: the appendix
+    protocol; both cluster arguments (names as in ``default``): the main text's with them.
+    """
+    names = list(default)
+    if configs is None and steps_per_config is None and n_states is None:
+        configs, steps_per_config = default.values()
     if (configs is None) != (steps_per_config is None):
-        raise ValueError(f"configs={configs}, steps_per_config={steps_per_config}: give both (main-text protocol: "
-                         f"{MAIN_TEXT_PROTOCOL}) or neither (appendix protocol: a new configuration per episode).")
+        raise ValueError(f"{names[0]}={configs}, {names[1]}={steps_per_config}: give both (main-text protocol: "
+                         f"{default}) or neither (appendix protocol: n_states, a new env per episode).")
     if configs is None:
-        return (2000 if n_states is None else n_states), "appendix"
-    for name, value in (("configs", configs), ("steps_per_config", steps_per_config)):
+        return n_states, None, "appendix"
+    for name, value in zip(names, (configs, steps_per_config)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
             raise ValueError(f"{name}={value!r}: need a positive int.")
     if n_states is not None and n_states != configs * steps_per_config:
-        raise ValueError(f"n_states={n_states} but configs x steps_per_config = {configs * steps_per_config}: "
-                         "leave n_states=None with configs and steps_per_config.")
-    return configs * steps_per_config, "main"
+        raise ValueError(f"n_states={n_states} but {names[0]} x {names[1]} = {configs * steps_per_config}: "
+                         f"leave n_states=None with {names[0]} and {names[1]}.")
+    return configs * steps_per_config, int(steps_per_config), "main"
 
 
 def _model_info(model: BaseAlgorithm | BasePolicy) -> dict[str, Any] | None:
@@ -402,17 +414,22 @@ def _check_env_id(env_id: str) -> None:
 # ----------------------------------------------------------------------------- collectors
 
 
-def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int = 2000, *,
+def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int | None = None, *,
                       action_mode: ActionMode, seed: int, max_episode_steps: int = 500, skip_first: int = 10,
+                      episodes: int | None = None, steps_per_episode: int | None = None,
                       vecnormalize: VecNormalize | None = None) -> StateDataset:
-    """ID states: the agent acting in the unmodified env, one fresh env seed per episode.
+    """ID states: the agent acting in the unmodified env, one fresh env seed per run.
 
-    Same ``max_episode_steps`` / ``skip_first`` as the OOD collection, so both samples
-    cover the same part of an episode. Atari envs are wrapped like the OOD ones.
+    Default, the main-text protocol's counterpart (``ID_MAIN_PROTOCOL``): ``episodes`` runs of
+    exactly ``steps_per_episode`` kept states each (restarting within the run if an episode
+    ends early); ``n_states`` alone: appendix G's, a fresh env seed per episode until
+    ``n_states``. Same ``max_episode_steps`` / ``skip_first`` as the OOD collection, so both
+    samples cover the same part of an episode. Atari envs are wrapped like the OOD ones.
     """
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be a gymnasium id string, got {type(env_id).__name__}.")
     _check_env_id(env_id)
+    n_states, steps_per_run, protocol_name = _protocol(n_states, episodes, steps_per_episode, ID_MAIN_PROTOCOL)
     actor, policy_kind = _prepare(model, env_id, n_states, action_mode, seed, max_episode_steps, skip_first,
                                   vecnormalize)
     rng = np.random.default_rng(seed)
@@ -428,8 +445,11 @@ def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: 
         check = _mujoco_instability if env_id in SUPPORTED_ENVS else None
         return _Run(venv, "id", None, f"{env_id} (seed {env_seed})", check)
 
-    buffer, rejected = _collect(actor, next_run, n_states, None, max_episode_steps, skip_first, seed)
-    protocol = dict(name="id", n_states=int(n_states), max_episode_steps=max_episode_steps, skip_first=skip_first)
+    buffer, rejected = _collect(actor, next_run, n_states, steps_per_run, max_episode_steps, skip_first, seed)
+    protocol = dict(name="id" if protocol_name == "appendix" else "id_main", n_states=int(n_states),
+                    max_episode_steps=max_episode_steps, skip_first=skip_first)
+    if protocol_name == "main":
+        protocol.update(episodes=episodes or ID_MAIN_PROTOCOL["episodes"], steps_per_episode=steps_per_run)
     metadata = _metadata("id", env_id, model, action_mode, policy_kind, seed, vecnormalize, protocol, buffer, rejected)
     return buffer.dataset(ID_LABEL, metadata, with_policy_obs=vecnormalize is not None)
 
@@ -440,11 +460,11 @@ def collect_mujoco_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_
                               ranges: PerturbationRanges = PerturbationRanges(),
                               vecnormalize: VecNormalize | None = None, probe_steps: int = 200,
                               max_tries: int = 20) -> StateDataset:
-    """OOD states: the agent acting in sampled, stable physics perturbations (appendix G).
+    """OOD states: the agent acting in sampled, stable physics perturbations (section 5, appendix G).
 
-    Default, the appendix protocol: ``n_states`` (2000) states, a new configuration per
-    episode. ``configs=50, steps_per_config=100`` (``MAIN_TEXT_PROTOCOL``) gives the main
-    text's 50 configurations x 100 states; ``skip_first=0`` reads it literally (no skip).
+    Default, the main text's protocol (``MAIN_TEXT_PROTOCOL``): 50 configurations x 100 kept
+    states (or ``configs`` x ``steps_per_config``); ``skip_first=0`` reads it literally (no
+    skip). ``n_states`` alone: appendix G's protocol, a new configuration per episode.
     ``probe_steps`` / ``max_tries`` go to ``sample_stable_config``, which rejects configs
     that blow up under random actions before the agent ever acts in them.
     """
@@ -452,7 +472,8 @@ def collect_mujoco_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_
         raise ValueError(f"unknown MuJoCo env {env_id!r}: use one of {list(SUPPORTED_ENVS)}.")
     if not isinstance(ranges, PerturbationRanges):
         raise TypeError(f"ranges must be a PerturbationRanges, got {type(ranges).__name__}.")
-    n_states, protocol_name = _protocol(n_states, configs, steps_per_config)
+    n_states, steps_per_config, protocol_name = _protocol(n_states, configs, steps_per_config)
+    configs = None if steps_per_config is None else n_states // steps_per_config
     actor, policy_kind = _prepare(model, env_id, n_states, action_mode, seed, max_episode_steps, skip_first,
                                   vecnormalize)
     rng = np.random.default_rng(seed)
@@ -477,14 +498,15 @@ def collect_atari_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_s
                              source: str | None = None) -> StateDataset:
     """OOD Atari states (uint8, 84x84x4): the agent playing sampled ``AtariOODConfig`` games.
 
-    The same protocol as MuJoCo; ``source`` picks the kind of edit (the game's default
-    if None, see ``paper_lib.ood.atari.OOD_SOURCE_NOTES``). An "episode" is what the
-    agent's wrappers call one: it ends at a lost life.
+    The same protocols as MuJoCo (default: the main text's); ``source`` picks the kind of
+    edit (the game's default if None, see ``paper_lib.ood.atari.OOD_SOURCE_NOTES``). An
+    "episode" is what the agent's wrappers call one: it ends at a lost life.
     """
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be an Atari id like 'SeaquestNoFrameskip-v4', got {type(env_id).__name__}.")
     game = _atari_game(env_id)
-    n_states, protocol_name = _protocol(n_states, configs, steps_per_config)
+    n_states, steps_per_config, protocol_name = _protocol(n_states, configs, steps_per_config)
+    configs = None if steps_per_config is None else n_states // steps_per_config
     actor, policy_kind = _prepare(model, env_id, n_states, action_mode, seed, max_episode_steps, skip_first, None)
     rng = np.random.default_rng(seed)
     sample_atari_config(game, np.random.default_rng(0), source)  # a bad source fails here, before any rollout
@@ -571,11 +593,12 @@ def noise_ood_states(id_dataset: StateDataset, rng: np.random.Generator, magnitu
 
 
 def score_dataset(model_or_policy: BaseAlgorithm | BasePolicy, dataset: StateDataset,
-                  batch_size: int = 1024) -> pd.DataFrame:
+                  batch_size: int = 1024, seed: int | None = 0) -> pd.DataFrame:
     """One row per state: every uncertainty measure the policy has, plus label and provenance.
 
     Scores are computed on ``policy_obs`` when the dataset has them (VecNormalize), else on
-    the raw states, i.e. always on what the policy saw while acting.
+    the raw states, i.e. always on what the policy saw while acting. ``seed`` fixes the MC
+    methods' per-state samples (None: torch's global RNG), so scoring is repeatable.
     """
     policy = _policy_of(model_or_policy)
     if not isinstance(dataset, StateDataset):
@@ -589,7 +612,7 @@ def score_dataset(model_or_policy: BaseAlgorithm | BasePolicy, dataset: StateDat
     if not _fits(obs.shape[1:], policy):
         raise ValueError(f"the dataset's states have shape {obs.shape[1:]} but the policy takes "
                          f"{policy.observation_space.shape}: score with the model the states were collected for.")
-    frame = pd.DataFrame(uncertainty(policy, obs, batch_size=batch_size))
+    frame = pd.DataFrame(uncertainty(policy, obs, batch_size=batch_size, seed=seed))
     frame["label"] = dataset.labels
     frame["source"] = dataset.source
     frame["episode"] = dataset.episode

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from paper_lib.io import save_npz_atomic
+from paper_lib.io import remove_stale_temps, save_npz_atomic
 
 FORMAT = "paper_lib.StateDataset/1"
 ID_LABEL, OOD_LABEL = 0, 1
@@ -141,6 +141,7 @@ class StateDataset:
         )
         if self.policy_obs is not None:
             arrays["policy_obs"] = self.policy_obs
+        remove_stale_temps(path)  # temp files of a writer killed before its rename
         return save_npz_atomic(path, **arrays)
 
     @classmethod

@@ -170,13 +170,58 @@ class PerturbationRanges:
             )
 
 
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _number(name: str, value: object) -> float:
+    """A finite real number, or one ValueError naming the field (strings and booleans are not numbers)."""
+    if not _is_number(value) or not math.isfinite(value):
+        raise ValueError(f"PerturbationConfig.{name}={value!r}: must be a finite number.")
+    return float(value)
+
+
 def _vec3(name: str, value: tuple[float, ...] | None) -> tuple[float, float, float] | None:
     if value is None:
         return None
-    vec = tuple(float(v) for v in value)
-    if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3 \
+            or not all(_is_number(v) and math.isfinite(v) for v in value):
         raise ValueError(f"PerturbationConfig.{name}={value!r}: give 3 finite numbers (x, y, z) or None.")
-    return vec  # type: ignore[return-value]
+    return tuple(float(v) for v in value)  # type: ignore[return-value]
+
+
+#: Relative slack on the range checks: log-uniform draws can land one rounding step past a bound.
+_RANGE_SLACK = 1e-9
+
+
+def _inside(value: float, bounds: tuple[float, float]) -> bool:
+    low, high = bounds
+    return low * (1 - _RANGE_SLACK) - _RANGE_SLACK <= value <= high * (1 + _RANGE_SLACK) + _RANGE_SLACK
+
+
+def range_violations(config: PerturbationConfig, ranges: PerturbationRanges) -> list[str]:
+    """How ``config`` leaves ``ranges`` (empty if it could have been drawn from them).
+
+    Gravity points down with a strength in ``ranges.gravity`` (Swimmer's sideways pull as
+    strong at most); wind blows at a speed in ``ranges.wind_speed`` through a medium no denser
+    than ``ranges.wind_density``; friction and geometry factors lie in their ranges.
+    """
+    out = []
+    if config.gravity is not None:
+        gx, gy, gz = config.gravity
+        if not _inside(-gz, ranges.gravity) or max(abs(gx), abs(gy)) > ranges.gravity[1] * (1 + _RANGE_SLACK):
+            out.append(f"gravity={config.gravity} (downward strength in {list(ranges.gravity)} m/s^2, "
+                       f"sideways at most {ranges.gravity[1]:g})")
+    if config.wind is not None and not _inside(math.hypot(*config.wind), ranges.wind_speed):
+        out.append(f"wind={config.wind} (speed in {list(ranges.wind_speed)} m/s)")
+    if config.density is not None and not _inside(config.density, (0.0, ranges.wind_density)):
+        out.append(f"density={config.density:g} (at most {ranges.wind_density:g} kg/m^3)")
+    if config.friction_scale is not None and not _inside(config.friction_scale, ranges.friction_scale):
+        out.append(f"friction_scale={config.friction_scale:g} (in {list(ranges.friction_scale)})")
+    for part, scale in (config.geometry_scales or {}).items():
+        if not _inside(scale, ranges.geometry_scale):
+            out.append(f"geometry_scales[{part!r}]={scale:g} (in {list(ranges.geometry_scale)})")
+    return out
 
 
 @dataclass(frozen=True)
@@ -185,6 +230,10 @@ class PerturbationConfig:
 
     ``seed`` is drawn with the configuration so that its probe rollout (and any
     ``env.reset(seed=config.seed)``) is reproducible from the config alone.
+
+    Every value must lie in the paper's ranges (``PerturbationRanges()``, appendix G) unless
+    ``outside_ranges=True`` says it is meant to leave them: friction x1e6 or gravity pulling
+    upwards is a typo far more often than an experiment.
     """
 
     env_id: str
@@ -194,33 +243,49 @@ class PerturbationConfig:
     friction_scale: float | None = None  # multiplies every geom's sliding friction
     geometry_scales: dict[str, float] | None = None  # part name -> scale factor
     seed: int | None = None
+    outside_ranges: bool = False  # True: values may leave the paper's ranges on purpose
 
     def __post_init__(self) -> None:
+        if not isinstance(self.env_id, str):
+            raise ValueError(f"PerturbationConfig.env_id={self.env_id!r}: use one of {list(SUPPORTED_ENVS)}.")
         info = _env_info(self.env_id)
+        if not isinstance(self.outside_ranges, bool):
+            raise ValueError(f"PerturbationConfig.outside_ranges={self.outside_ranges!r}: must be true or false.")
         object.__setattr__(self, "gravity", _vec3("gravity", self.gravity))
         object.__setattr__(self, "wind", _vec3("wind", self.wind))
         if self.density is not None:
-            if not (math.isfinite(self.density) and self.density >= 0):
+            if not (_number("density", self.density) >= 0):
                 raise ValueError(f"PerturbationConfig.density={self.density}: must be a finite number >= 0.")
             object.__setattr__(self, "density", float(self.density))
         if self.friction_scale is not None:
-            if not (math.isfinite(self.friction_scale) and self.friction_scale > 0):
+            if not (_number("friction_scale", self.friction_scale) > 0):
                 raise ValueError(f"PerturbationConfig.friction_scale={self.friction_scale}: must be > 0.")
             object.__setattr__(self, "friction_scale", float(self.friction_scale))
         if self.seed is not None:
+            if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
+                raise ValueError(f"PerturbationConfig.seed={self.seed!r}: must be an integer >= 0 or None.")
             object.__setattr__(self, "seed", int(self.seed))
         if self.friction_scale is not None and "friction" not in info.kinds:
             raise ValueError(f"{self.env_id} has no contacts, friction cannot act: set friction_scale=None.")
         if self.geometry_scales is not None:
+            if not isinstance(self.geometry_scales, dict):
+                raise ValueError(f"PerturbationConfig.geometry_scales={self.geometry_scales!r}: give a mapping "
+                                 f"part -> factor, e.g. {{{list(info.parts)[0]!r}: 2.0}}.")
             unknown = set(self.geometry_scales) - set(info.parts)
             if unknown:
                 raise ValueError(
-                    f"Unknown geometry part(s) {sorted(unknown)} for {self.env_id}: use {list(info.parts)}."
+                    f"Unknown geometry part(s) {sorted(unknown, key=str)} for {self.env_id}: use {list(info.parts)}."
                 )
-            scales = {k: float(v) for k, v in self.geometry_scales.items()}
-            if not all(math.isfinite(v) and v > 0 for v in scales.values()):
+            scales = {k: _number(f"geometry_scales[{k!r}]", v) for k, v in self.geometry_scales.items()}
+            if not all(v > 0 for v in scales.values()):
                 raise ValueError(f"PerturbationConfig.geometry_scales={scales}: factors must be > 0.")
             object.__setattr__(self, "geometry_scales", scales)
+        if not self.outside_ranges:
+            wrong = range_violations(self, PerturbationRanges())
+            if wrong:
+                raise ValueError(f"PerturbationConfig for {self.env_id}: {'; '.join(wrong)} leaves the paper's "
+                                 "ranges (PerturbationRanges, appendix G); fix the value, or pass "
+                                 "outside_ranges=True if you mean it.")
 
     @property
     def kinds(self) -> list[str]:
@@ -234,11 +299,17 @@ class PerturbationConfig:
         return [k for k in KINDS if used[k]]
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+        data = dataclasses.asdict(self)
+        if not self.outside_ranges:  # the flag is written only when set: in-range JSON stays as it was
+            del data["outside_ranges"]
+        return json.dumps(data, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> PerturbationConfig:
-        data = json.loads(text)
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, TypeError) as err:
+            raise ValueError(f"PerturbationConfig JSON is not valid JSON ({err}): {str(text)[:200]!r}") from None
         fields = {f.name for f in dataclasses.fields(cls)}
         if not isinstance(data, dict) or set(data) - fields or "env_id" not in data:
             raise ValueError(
@@ -246,6 +317,9 @@ class PerturbationConfig:
             )
         for key in ("gravity", "wind"):
             if data.get(key) is not None:
+                if not isinstance(data[key], list):
+                    raise ValueError(f"PerturbationConfig JSON: {key} must be a list of 3 numbers [x, y, z] or "
+                                     f"null, got {data[key]!r}")
                 data[key] = tuple(data[key])
         return cls(**data)
 
@@ -307,6 +381,8 @@ def sample_config(
             names = [names[int(rng.integers(len(names)))]]
         cfg["geometry_scales"] = {n: float(rng.uniform(*ranges.geometry_scale)) for n in names}
     cfg["seed"] = int(rng.integers(0, 2**31 - 1))
+    # Ranges wider than the paper's are the caller's explicit choice: their draws may leave the paper's.
+    cfg["outside_ranges"] = bool(range_violations(PerturbationConfig(**cfg, outside_ranges=True), PerturbationRanges()))
     return PerturbationConfig(**cfg)
 
 

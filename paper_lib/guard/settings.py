@@ -1,0 +1,148 @@
+"""params.yaml's `guard` section -> validated settings of the guard experiment for the active profile.
+
+    guard:
+      alpha: 0.05               # false-alarm rate (per state, or per episode for the sequential guards)
+      window: 10                # sliding-window length of the window guard
+      cusum_quantile: 0.9       # CUSUM drift = this quantile of held-out ID scores
+      fallback: zero            # what acts while flagged
+      fallback_scores: [value_std, mahalanobis_obs]   # guards whose fallback runs are measured
+      combine: [value_std, mahalanobis_obs]           # a rank combination of these, where all apply
+      budgets:                  # per profile; may also override alpha and window
+        tiny: {alpha: 0.2, window: 3, fit_episodes: 4, calibration_episodes: 8, ...}
+
+Every error is raised here, naming the key and what to write, before any rollout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from paper_lib.config import RunConfig, validate_params
+from paper_lib.guard.conformal import check_alpha, check_window, min_calibration_size
+from paper_lib.guard.scores import SCORE_NAMES
+
+SECTION = "guard"
+SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
+BUDGET = ("fit_episodes", "calibration_episodes", "id_test_episodes", "perturbed_episodes", "episode_steps",
+          "change_steps")
+FALLBACKS = ("zero",)
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """The experiment's settings for one profile."""
+
+    profile: str
+    alpha: float
+    window: int
+    cusum_quantile: float
+    fallback: str
+    fallback_scores: tuple[str, ...]
+    combine: tuple[str, ...]
+    fit_episodes: int  # ID episodes to fit the detectors (half) and to set the CUSUM drift / ranks (half)
+    calibration_episodes: int
+    id_test_episodes: int
+    perturbed_episodes: int
+    episode_steps: int
+    change_steps: tuple[int, int]  # the change happens at a uniform step in [low, high]
+
+    def caption(self) -> str:
+        low, high = self.change_steps
+        return (f"guard alpha {self.alpha:g}; {self.calibration_episodes} held-out ID calibration "
+                f"episodes, {self.id_test_episodes} ID and {self.perturbed_episodes} perturbed test episodes of "
+                f"{self.episode_steps} steps, the physics changing at a uniform step in [{low}, {high}]; window "
+                f"{self.window}; CUSUM drift = {self.cusum_quantile:g} quantile of held-out ID scores")
+
+
+def _int(value: Any, where: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{where} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _names(value: Any, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"{where} must be a list of score names, e.g. [value_std, mahalanobis_obs], got {value!r}")
+    unknown = [v for v in value if v not in SCORE_NAMES]
+    if unknown:
+        raise ValueError(f"{where}: unknown score(s) {unknown}; use names from {list(SCORE_NAMES)}")
+    return tuple(value)
+
+
+def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
+    """Validate the section and merge the profile's budget over the shared settings."""
+    if not isinstance(section, dict):
+        raise ValueError(f"{where} must be a mapping with {list(SHARED)} and `budgets`, got {section!r}")
+    unknown = sorted(set(section) - set(SHARED) - {"budgets"})
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {list(SHARED) + ['budgets']}")
+    budgets = section.get("budgets")
+    if not isinstance(budgets, dict) or profile not in budgets or not isinstance(budgets[profile], dict):
+        have = sorted(budgets) if isinstance(budgets, dict) else []
+        raise ValueError(f"{where}.budgets has no mapping for the active profile {profile!r} (has {have}); add "
+                         f"`{profile}: {{{', '.join(f'{k}: ...' for k in BUDGET)}}}`")
+    budget = budgets[profile]
+    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window"})
+    if unknown:
+        raise ValueError(f"{where}.budgets.{profile}: unknown key(s) {unknown}; known: {list(BUDGET)} (and alpha, window)")
+    merged = {**{k: section.get(k) for k in SHARED}, **budget}
+    missing = [k for k in SHARED + BUDGET if merged.get(k) is None]
+    if missing:
+        raise ValueError(f"{where}: {missing} not set for profile {profile!r}; set them in `guard` or in its budget")
+    here = f"{where} (profile {profile!r})"
+    try:
+        alpha = check_alpha(merged["alpha"])
+        window = check_window(merged["window"])
+    except ValueError as err:
+        raise ValueError(f"{here}: {err}") from None
+    quantile = merged["cusum_quantile"]
+    if isinstance(quantile, bool) or not isinstance(quantile, (int, float)) or not 0 < quantile < 1:
+        raise ValueError(f"{here}: cusum_quantile must lie strictly between 0 and 1, e.g. 0.9, got {quantile!r}")
+    if merged["fallback"] not in FALLBACKS:
+        raise ValueError(f"{here}: fallback must be one of {list(FALLBACKS)}, got {merged['fallback']!r}")
+    fallback_scores = _names(merged["fallback_scores"], f"{here}: fallback_scores")
+    combine = _names(merged["combine"], f"{here}: combine")
+    if len(combine) == 1:
+        raise ValueError(f"{here}: combine needs two or more scores (or [] for none), got {list(combine)}")
+    counts = {k: _int(merged[k], f"{here}: {k}", 1) for k in BUDGET[:-2]}
+    if counts["fit_episodes"] < 2:
+        raise ValueError(f"{here}: fit_episodes must be >= 2 (half fit the detectors, half set the CUSUM drift)")
+    need = min_calibration_size(alpha)
+    if counts["calibration_episodes"] < need:
+        raise ValueError(f"{here}: alpha={alpha:g} needs calibration_episodes >= {need} (n >= 1/alpha - 1), got "
+                         f"{counts['calibration_episodes']}; raise it or raise alpha to >= "
+                         f"{1 / (counts['calibration_episodes'] + 1):.3g}")
+    steps = _int(merged["episode_steps"], f"{here}: episode_steps", 2)
+    change = merged["change_steps"]
+    if not (isinstance(change, list) and len(change) == 2 and all(isinstance(c, int) and not isinstance(c, bool)
+                                                                  for c in change)
+            and 0 <= change[0] <= change[1] < steps - 1):
+        raise ValueError(f"{here}: change_steps must be [low, high] with 0 <= low <= high < episode_steps - 1 = "
+                         f"{steps - 1}, got {change!r}")
+    if window >= steps:
+        raise ValueError(f"{here}: window={window} must be shorter than episode_steps={steps}")
+    return GuardSettings(profile=profile, alpha=alpha, window=window, cusum_quantile=float(quantile),
+                         fallback=merged["fallback"], fallback_scores=fallback_scores, combine=combine,
+                         episode_steps=steps, change_steps=(change[0], change[1]), **counts)
+
+
+def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, GuardSettings]:
+    """The active profile (checked by paper_lib.config) and its guard settings."""
+    path = Path(params_file)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
+    try:
+        params = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f"{path}: YAML syntax error ({err}); fix it or restore it with `git checkout params.yaml`") \
+            from None
+    if not isinstance(params, dict) or SECTION not in params:
+        raise ValueError(f"{path} has no `{SECTION}` section; add it (see paper_lib/guard/settings.py and the README's "
+                         "'The OOD guard')")
+    section = params.pop(SECTION)
+    cfg = validate_params(params, path)
+    return cfg, parse_settings(section, cfg.profile, f"{path}: {SECTION}")

@@ -1,0 +1,147 @@
+"""Which runs of the active profile exist, and what each has: checkpoint, dataset, evaluation, scores.
+
+    python -m paper_lib.pipeline_status      # prints the runs that are missing something, writes results/<profile>/runs.md
+
+The tables and figures are built from the runs that exist (a profile may be partly trained:
+3 of 8 envs, some seeds missing); this module is the one place that says which those are, so
+every notebook skips the same runs and the missing ones are listed instead of trained.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from paper_lib.config import RunConfig, load_run_config
+from paper_lib.io import write_text_atomic
+from paper_lib.run_results import SCORE_FILES, evaluation_path, scores_dir
+
+Run = tuple[str, str, int]
+#: What a run can have, in pipeline order, and the command that makes each.
+ARTIFACTS = {
+    "checkpoint": "make retrain (hours) or `dvc repro -s train@{stage}`",
+    "dataset": "make recollect, or `dvc repro -s collect@{stage}`",
+    "evaluation": "make recollect, or `dvc repro -s evaluate@{stage}`",
+    "scores": "make reproduce, once the run has its dataset",
+}
+
+
+def stage_suffix(env_id: str, method: str, seed: int) -> str:
+    """The `<env>-<method>-<seed>` part of a matrix stage name in dvc.yaml."""
+    return f"{env_id}-{method}-{seed}"
+
+
+def has(cfg: RunConfig, run: Run, artifact: str) -> bool:
+    """Whether `run` has `artifact` (one of ARTIFACTS) on disk."""
+    if artifact == "checkpoint":
+        folder = cfg.checkpoint_dir(*run)
+        return (folder / "model.zip").is_file() and (folder / "config.json").is_file()
+    if artifact == "dataset":
+        return cfg.dataset_path(*run).is_file()
+    if artifact == "evaluation":
+        return evaluation_path(cfg, *run).is_file()
+    if artifact == "scores":
+        return all((scores_dir(cfg, *run) / name).is_file() for name in SCORE_FILES)
+    raise ValueError(f"unknown artifact {artifact!r}; use one of {list(ARTIFACTS)}")
+
+
+def available_runs(cfg: RunConfig, *needs: str, methods: list[str] | None = None) -> list[Run]:
+    """The profile's runs that have every artifact in `needs` (and one of `methods`, if given), in profile order."""
+    return [run for run in cfg.runs() if (methods is None or run[1] in methods) and all(has(cfg, run, a) for a in needs)]
+
+
+#: Per-run stages whose staleness (`dvc status`) the status table reports, and what a stale one means.
+STALE_MEANING = {"train": "trained before their settings in params.yaml, the training notebook or its command last "
+                          "changed (`make retrain` trains them again)",
+                 "collect": "collected before the collection code or settings last changed (`make recollect`)",
+                 "evaluate": "evaluated before the evaluation code or settings last changed (`make recollect`)"}
+
+
+def stale_stages(dvc: str = "dvc", env: dict[str, str] | None = None) -> set[str] | None:
+    """Names of the stages `dvc status` finds changed (e.g. 'train@HalfCheetah-v5-masksembles-0'); None if it fails."""
+    import json
+    import subprocess
+
+    done = subprocess.run([dvc, "status", "--json"], capture_output=True, text=True, env=env, check=False)
+    try:
+        return set(json.loads(done.stdout)) if done.returncode == 0 else None
+    except json.JSONDecodeError:
+        return None
+
+
+def status_table(cfg: RunConfig, stale: set[str] | None = None) -> pd.DataFrame:
+    """One row per run of the profile: env, method, seed, yes/no per artifact and, given `stale`, its stale stages."""
+    rows = []
+    for e, m, s in cfg.runs():
+        row = {"env": e, "method": m, "seed": s, **{a: "yes" if has(cfg, (e, m, s), a) else "no" for a in ARTIFACTS}}
+        if stale is not None:
+            row["stale (dvc status)"] = ", ".join(st for st in STALE_MEANING
+                                                  if f"{st}@{stage_suffix(e, m, s)}" in stale) or "-"
+        rows.append(row)
+    return pd.DataFrame(rows, columns=["env", "method", "seed", *ARTIFACTS] + (["stale (dvc status)"] if stale is not None else []))
+
+
+def missing_lines(cfg: RunConfig, table: pd.DataFrame | None = None, artifacts: tuple[str, ...] = tuple(ARTIFACTS)
+                  ) -> list[str]:
+    """One line per run that lacks one of `artifacts`: what it lacks and the command that makes it."""
+    table = status_table(cfg) if table is None else table
+    lines = []
+    for row in table.itertuples(index=False):
+        lacking = [a for a in artifacts if getattr(row, a) == "no"]
+        if lacking:
+            how = ARTIFACTS[lacking[0]].format(stage=stage_suffix(row.env, row.method, row.seed))
+            lines.append(f"{row.env} {row.method} seed {row.seed}: no {', no '.join(lacking)} ({how})")
+    return lines
+
+
+def summary(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
+    """'8 of 10 runs of profile cpu are complete; 2 are missing something' and the like."""
+    table = status_table(cfg) if table is None else table
+    complete = int((table[list(ARTIFACTS)] == "yes").all(axis=1).sum())
+    counts = ", ".join(f"{int((table[a] == 'yes').sum())} with {a}" for a in ARTIFACTS)
+    return f"profile {cfg.profile!r}: {len(table)} runs, {complete} complete ({counts})"
+
+
+def stale_lines(table: pd.DataFrame) -> list[str]:
+    """One line per kind of stale stage: how many runs, and what it means."""
+    if "stale (dvc status)" not in table:
+        return []
+    lines = []
+    for stage, meaning in STALE_MEANING.items():
+        n = int(sum(stage in kinds.split(", ") for kinds in table["stale (dvc status)"]))
+        if n:
+            lines.append(f"{n} of {len(table)} runs were {meaning}; the tables use them as they are.")
+    return lines
+
+
+def write_status(cfg: RunConfig, stale: set[str] | None = None) -> Path:
+    """results/<profile>/runs.md: the summary, the missing and stale runs with their commands, and the full table."""
+    table = status_table(cfg, stale)
+    lines = missing_lines(cfg, table)
+    text = [f"# Runs of {summary(cfg, table)}", "",
+            ("Tables and figures are built from the runs that have what they need; nothing is trained or "
+             "collected by `make reproduce`."), ""]
+    text += (["Missing:", ""] + [f"- {line}" for line in lines] if lines else ["Nothing is missing."]) + [""]
+    text += [f"- {line}" for line in stale_lines(table)] + ([""] if stale_lines(table) else [])
+    text += [table.to_markdown(index=False), ""]
+    return write_text_atomic(cfg.results / "runs.md", "\n".join(text))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--params", default="params.yaml")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_run_config(args.params)
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+    print(summary(cfg))
+    for line in missing_lines(cfg):
+        print(f"  missing: {line}")
+    print(f"written: {write_status(cfg)}")
+
+
+if __name__ == "__main__":
+    main()

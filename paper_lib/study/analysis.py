@@ -1,0 +1,169 @@
+"""The study's trials as a table, and what the paper reads from them: Pareto fronts, best configurations,
+ablations along the number of members and the dropout probability, and the share of performant configurations.
+
+Rewards have different scales per environment, so wherever environments are pooled the reward is
+min-max normalized per (algorithm, environment) over all COMPLETE trials of every method there:
+0 is the worst and 1 the best configuration any method found.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import optuna
+import pandas as pd
+
+from paper_lib.methods.networks import METHODS
+from paper_lib.study.config import parse_study_name
+
+KEYS = ["algo", "env", "method"]
+#: AUROC of a detector that guesses: the reference point of every hypervolume.
+CHANCE_AUROC = 0.5
+
+
+def load_trials(storage: str | optuna.storages.BaseStorage, names: Iterable[str] | None = None) -> pd.DataFrame:
+    """One row per trial of every study in `storage` (or of `names`): state, objectives, seed, settings, scores."""
+    stored = set(optuna.get_all_study_names(storage=storage))
+    names = list(names) if names is not None else sorted(stored)
+    missing = [name for name in names if name not in stored]
+    if missing:
+        raise ValueError(f"the storage has no study {missing[0]!r} (nor {len(missing) - 1} more); run its trials first: "
+                         f"python -m paper_lib.study.worker --study {missing[0]}  (or --all)")
+    rows = []
+    for name in names:
+        algo, env_id, method = parse_study_name(name)
+        study = optuna.load_study(study_name=name, storage=storage)
+        for t in study.get_trials(deepcopy=False):
+            attrs = t.user_attrs
+            row = {"study": name, "algo": algo, "env": env_id, "method": method, "number": t.number,
+                   "state": t.state.name, "reward": t.values[0] if t.values else np.nan,
+                   "auroc": t.values[1] if t.values else np.nan, "seed": attrs.get("seed"),
+                   "retried_from": t.system_attrs.get("failed_trial"), "fail_reason": attrs.get("fail_reason"),
+                   "surplus": bool(attrs.get("surplus", False)), "worker": attrs.get("worker"),
+                   "seconds": attrs.get("seconds"), "reward_std": attrs.get("reward_std"),
+                   "final_training_reward": attrs.get("final_training_reward"),
+                   "auroc_measure": attrs.get("auroc_measure"), "config": attrs.get("config"),
+                   **{k: v for k, v in attrs.items() if k.startswith("auroc_") and k != "auroc_measure"},
+                   **t.params}
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def complete(df: pd.DataFrame) -> pd.DataFrame:
+    """COMPLETE trials only, with `reward_norm` (min-max per algorithm and env over every method's trials)."""
+    done = df[df["state"] == "COMPLETE"].copy()
+    grouped = done.groupby(["algo", "env"])["reward"]
+    low, high = grouped.transform("min"), grouped.transform("max")
+    done["reward_norm"] = np.where(high > low, (done["reward"] - low) / (high - low).where(high > low, 1.0), 1.0)
+    return done
+
+
+def pareto_mask(points: np.ndarray) -> np.ndarray:
+    """True for the points no other point dominates (both coordinates maximized)."""
+    points = np.asarray(points, dtype=float)
+    n = len(points)
+    mask = np.ones(n, dtype=bool)
+    for i in range(n):
+        others = np.delete(points, i, axis=0)
+        dominated = np.all(others >= points[i], axis=1) & np.any(others > points[i], axis=1)
+        mask[i] = not dominated.any()
+    return mask
+
+
+def hypervolume_2d(points: np.ndarray, reference: tuple[float, float]) -> float:
+    """Area dominated by `points` (both maximized) and bounded below by `reference`: the front's size in one number."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    pts = pts[(pts[:, 0] > reference[0]) & (pts[:, 1] > reference[1])]
+    area, top = 0.0, reference[1]
+    for x, y in sorted(map(tuple, pts), key=lambda p: -p[0]):
+        if y > top:
+            area += (x - reference[0]) * (y - top)
+            top = y
+    return float(area)
+
+
+def with_fronts(done: pd.DataFrame) -> pd.DataFrame:
+    """`done` plus `is_pareto`: on its own study's (algorithm, env, method) front of reward vs AUROC."""
+    out = done.copy()
+    out["is_pareto"] = False
+    for idx in out.groupby(KEYS).groups.values():
+        out.loc[idx, "is_pareto"] = pareto_mask(out.loc[idx, ["reward", "auroc"]].to_numpy())
+    return out
+
+
+def study_summary(df: pd.DataFrame, reward_threshold: float, auroc_threshold: float) -> pd.DataFrame:
+    """Per study: trials by state, best objectives, front size, hypervolume and the performant configurations.
+
+    A configuration is *performant* when its normalized reward is at least `reward_threshold` and its AUROC
+    at least `auroc_threshold`. The hypervolume is measured in (normalized reward, AUROC) above (0, 0.5).
+    """
+    done = with_fronts(complete(df))
+    finished = dict(iter(done.groupby(KEYS)))
+    rows = []
+    for keys, group in df.groupby(KEYS):
+        ok = finished.get(keys, done.iloc[0:0])
+        performant = (ok["reward_norm"] >= reward_threshold) & (ok["auroc"] >= auroc_threshold)
+        rows.append({**dict(zip(KEYS, keys)), "complete": len(ok), "failed": int((group["state"] == "FAIL").sum()),
+                     "retried": int(group["retried_from"].notna().sum()),
+                     "best_reward": ok["reward"].max(), "best_auroc": ok["auroc"].max(),
+                     "front_size": int(ok["is_pareto"].sum()),
+                     "hypervolume": hypervolume_2d(ok[["reward_norm", "auroc"]].to_numpy(), (0.0, CHANCE_AUROC)),
+                     "performant": int(performant.sum()),
+                     "performant_share": float(performant.mean()) if len(ok) else np.nan})
+    out = pd.DataFrame(rows)
+    return _method_order(out)
+
+
+def _method_order(df: pd.DataFrame) -> pd.DataFrame:
+    order = {m: i for i, m in enumerate(METHODS)}
+    return df.sort_values(["algo", "env", "method"], key=lambda s: s.map(order) if s.name == "method" else s,
+                          ignore_index=True)
+
+
+def best_configs(df: pd.DataFrame) -> pd.DataFrame:
+    """Every study's Pareto-optimal trials, best reward first, with their seed and searched settings."""
+    fronts = with_fronts(complete(df))
+    front = fronts[fronts["is_pareto"]]
+    settings = [c for c in df.columns if c not in _NOT_SETTINGS and not c.startswith("auroc_")]
+    columns = [*KEYS, "number", "seed", "reward", "auroc", *[c for c in settings if front[c].notna().any()]]
+    return _method_order(front.sort_values(["algo", "env", "method", "reward"], ascending=[True, True, True, False])
+                         [columns]).reset_index(drop=True)
+
+
+_NOT_SETTINGS = {"study", "algo", "env", "method", "number", "state", "reward", "auroc", "seed", "retried_from",
+                 "fail_reason", "surplus", "worker", "seconds", "reward_std", "final_training_reward",
+                 "auroc_measure", "config", "reward_norm", "is_pareto"}
+
+
+def ablation_frame(df: pd.DataFrame, axis: str, methods: list[str]) -> pd.DataFrame:
+    """COMPLETE trials of `methods` with their value of `axis` (k or p): the rows the ablation plots average."""
+    done = complete(df)
+    if axis not in done.columns:
+        return done.iloc[0:0].assign(**{axis: []})
+    rows = done[done["method"].isin(methods) & done[axis].notna()].copy()
+    rows[axis] = rows[axis].astype(float).round(6)
+    return rows
+
+
+def ablation_table(rows: pd.DataFrame, axis: str) -> pd.DataFrame:
+    """Mean, std and count of the normalized reward and the AUROC per method and `axis` value, over all envs."""
+    stats = rows.groupby(["method", axis]).agg(reward_norm_mean=("reward_norm", "mean"),
+                                               reward_norm_std=("reward_norm", "std"),
+                                               auroc_mean=("auroc", "mean"), auroc_std=("auroc", "std"),
+                                               trials=("auroc", "size"))
+    return stats.reset_index()
+
+
+def reading(summary: pd.DataFrame) -> pd.DataFrame:
+    """Per (algorithm, env): which method has the most performant configurations and the largest hypervolume."""
+    rows = []
+    for (algo, env), group in summary.groupby(["algo", "env"]):
+        most = group.loc[group["performant"].idxmax()]
+        tied = group[group["performant"] == most["performant"]]["method"].tolist()
+        largest = group.loc[group["hypervolume"].idxmax()]
+        rows.append({"algo": algo, "env": env, "most_performant": ", ".join(tied),
+                     "performant": int(most["performant"]), "largest_hypervolume": largest["method"],
+                     "hypervolume": float(largest["hypervolume"])})
+    return pd.DataFrame(rows)
+

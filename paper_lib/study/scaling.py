@@ -1,0 +1,177 @@
+"""Appendix E: the same env and method trained at several hidden-layer widths (Ant 64/128, Walker2d 64/96/128).
+
+Runs come from params.yaml's `study.scaling.<profile>`: widths per env, methods, seeds, a training
+budget (null: each env's full budget) and `fixed` algorithm settings. Each run is an ordinary
+training run (`paper_lib.train.train_run`, so it resumes after a kill) with the env's paper
+hyperparameters and every hidden layer set to the width, Masksembles included.
+
+    python -m paper_lib.study.scaling            # train every run of the active profile that is not done yet
+    python -m paper_lib.study.scaling --list     # the runs and their folders
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from paper_lib.config import PARAMS_FILE, read_params
+from paper_lib.methods.networks import METHODS
+from paper_lib.study.space import agent_kwargs
+
+KEYS = ("widths", "methods", "seeds", "total_timesteps", "fixed", "eval_episodes")
+
+
+@dataclass(frozen=True)
+class ScalingRun:
+    env_id: str
+    method: str
+    width: int
+    seed: int
+
+
+@dataclass(frozen=True)
+class ScalingConfig:
+    profile: str
+    runs: list[ScalingRun]
+    total_timesteps: int | None
+    fixed: dict[str, Any]
+    eval_episodes: int
+    hyperparameters: dict[str, dict[str, Any]]
+    root: Path
+
+    def run_dir(self, run: ScalingRun) -> Path:
+        return self.root / "results" / self.profile / "scaling" / run.env_id / run.method / f"w{run.width}" / \
+            f"seed{run.seed}"
+
+    def agent_kwargs(self, run: ScalingRun) -> dict[str, Any]:
+        return agent_kwargs({"width": run.width}, self.fixed, self.hyperparameters[run.env_id])
+
+    def caption(self) -> str:
+        steps = self.total_timesteps or "each env's full"
+        seeds = sorted({r.seed for r in self.runs})
+        return (f"profile '{self.profile}': {steps} training steps per run, {len(seeds)} seed(s) {seeds}, "
+                f"{self.eval_episodes} deterministic evaluation episodes; the paper: 2-3 runs at the full budget")
+
+
+def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = None) -> ScalingConfig:
+    path = Path(path)
+    params = read_params(path)
+    profile = profile or (params.get("run") or {}).get("profile")
+    section = ((params.get("study") or {}).get("scaling")) or {}
+    where = f"{path}: study.scaling.{profile}"
+    if profile not in section:
+        raise ValueError(f"{path}: study.scaling has no profile {profile!r}; known: {sorted(section)}")
+    raw = section[profile]
+    if not isinstance(raw, dict) or set(raw) != set(KEYS):
+        raise ValueError(f"{where} must have exactly the keys {list(KEYS)}, got {raw!r}")
+    hps = params["hyperparameters"]
+    if not isinstance(raw["widths"], dict) or not raw["widths"]:
+        raise ValueError(f"{where}.widths must map env ids to lists of widths, e.g. {{Ant-v5: [64, 128]}}")
+    for env_id, widths in raw["widths"].items():
+        if env_id not in hps:
+            raise ValueError(f"{where}.widths: unknown env {env_id!r}; params.yaml has hyperparameters for {sorted(hps)}")
+        if not isinstance(widths, list) or not widths or not all(
+                isinstance(w, int) and not isinstance(w, bool) and w >= 10 for w in widths):
+            raise ValueError(f"{where}.widths.{env_id} must be a list of integer widths >= 10, got {widths!r}")
+    if not isinstance(raw["methods"], list) or not raw["methods"] or not set(raw["methods"]) <= set(METHODS):
+        raise ValueError(f"{where}.methods must be a non-empty list from {METHODS}, got {raw['methods']!r}")
+    if not isinstance(raw["seeds"], list) or not raw["seeds"] or not all(
+            isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in raw["seeds"]):
+        raise ValueError(f"{where}.seeds must be a non-empty list of integers >= 0, got {raw['seeds']!r}")
+    steps = raw["total_timesteps"]
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+        raise ValueError(f"{where}.total_timesteps must be a positive integer or null, got {steps!r}")
+    episodes = raw["eval_episodes"]
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"{where}.eval_episodes must be a positive integer, got {episodes!r}")
+    if not isinstance(raw["fixed"], dict):
+        raise ValueError(f"{where}.fixed must be a mapping of algorithm settings, got {raw['fixed']!r}")
+    runs = [ScalingRun(env_id, method, width, seed) for env_id, widths in raw["widths"].items()
+            for method in raw["methods"] for width in widths for seed in raw["seeds"]]
+    return ScalingConfig(profile, runs, steps, dict(raw["fixed"]), episodes, hps, path.parent)
+
+
+def is_done(cfg: ScalingConfig, run: ScalingRun) -> bool:
+    """A finished checkpoint of this run at this budget and width (so a re-run trains only what is missing)."""
+    config_file = cfg.run_dir(run) / "config.json"
+    if not config_file.is_file():
+        return False
+    config = json.loads(config_file.read_text())
+    wanted = cfg.total_timesteps or cfg.hyperparameters[run.env_id]["total_timesteps"]
+    return config.get("total_timesteps") == wanted and list(config.get("hidden_sizes") or [])[:1] == [run.width]
+
+
+def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]:
+    """Train (or resume) every run that has no finished checkpoint yet."""
+    from paper_lib.train import train_run
+
+    done = []
+    for run in cfg.runs:
+        if is_done(cfg, run):
+            continue
+        log(f"scaling: training {run}")
+        done.append(train_run(run.env_id, run.method, run.seed, cfg.run_dir(run), total_timesteps=cfg.total_timesteps,
+                              agent_kwargs=cfg.agent_kwargs(run), torch_threads=threads))
+    return done
+
+
+def training_curves(cfg: ScalingConfig) -> pd.DataFrame:
+    """Every run's training curve, tagged with env, method, width and seed."""
+    frames = []
+    for run in cfg.runs:
+        path = cfg.run_dir(run) / "training_curve.csv"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} is missing; train it with `python -m paper_lib.study.scaling`")
+        frames.append(pd.read_csv(path).assign(env=run.env_id, method=run.method, width=run.width, seed=run.seed))
+    return pd.concat(frames, ignore_index=True)
+
+
+def final_rewards(cfg: ScalingConfig) -> pd.DataFrame:
+    """Deterministic evaluation reward of every run, one row per episode."""
+    from paper_lib.checkpoints import load_checkpoint
+    from paper_lib.study.objective import evaluation_episodes
+
+    rows = []
+    for run in cfg.runs:
+        checkpoint = load_checkpoint(cfg.run_dir(run), run.env_id, run.method, run.seed)
+        rewards = evaluation_episodes(checkpoint, cfg.eval_episodes, 10_000 + run.seed, deterministic=True)
+        rows += [{"env": run.env_id, "method": run.method, "width": run.width, "seed": run.seed, "episode": i,
+                  "reward": float(r)} for i, r in enumerate(rewards)]
+    return pd.DataFrame(rows)
+
+
+def final_table(final: pd.DataFrame) -> pd.DataFrame:
+    """Mean ± std of the final reward per env, method and width (std over episodes and seeds)."""
+    return (final.groupby(["env", "method", "width"])["reward"].agg(mean="mean", std=lambda r: float(np.std(r)),
+                                                                   episodes="size").reset_index())
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Train appendix E's scaling runs (resumable).")
+    parser.add_argument("--params", default="params.yaml")
+    parser.add_argument("--profile", default=None, help="budget profile (default: params.yaml's active profile)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--list", action="store_true", help="print the runs and their folders")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_scaling_config(args.params, args.profile)
+        if args.list:
+            for run in cfg.runs:
+                print(f"{run.env_id} {run.method} width {run.width} seed {run.seed}: {cfg.run_dir(run)} "
+                      f"({'done' if is_done(cfg, run) else 'to train'})")
+            return
+        if args.threads < 1:
+            raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
+        train_missing(cfg, args.threads)
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+
+
+if __name__ == "__main__":
+    main()
