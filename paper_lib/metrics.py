@@ -102,12 +102,7 @@ def bootstrap_auroc_ci(
     """
     id_s = _as_scores(id_scores, "id_scores")
     ood_s = _as_scores(ood_scores, "ood_scores")
-    if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
-    if int(n_boot) != n_boot or n_boot < 1:
-        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}.")
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1 (e.g. 0.95), got {level!r}.")
+    _check_bootstrap_args(rng, n_boot, level)
     n = id_s.size + ood_s.size
     chunk = max(1, 4_000_000 // n)  # bound memory to a few 10 MB per batch of replicates
     aucs = []
@@ -192,12 +187,7 @@ def cluster_bootstrap_auroc(
     if id_s.shape[0] != ood_s.shape[0]:
         raise ValueError(f"id_scores has {id_s.shape[0]} scoring seeds but ood_scores {ood_s.shape[0]}; "
                          "give both the same.")
-    if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
-    if int(n_boot) != n_boot or n_boot < 1:
-        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}.")
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1 (e.g. 0.95), got {level!r}.")
+    _check_bootstrap_args(rng, n_boot, level)
     id_labels = _cluster_labels(id_clusters, id_s.shape[1], "id_clusters")
     ood_labels = _cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")
     id_names, id_index = np.unique(id_labels, return_inverse=True)
@@ -310,3 +300,13 @@ def metrics_table(
             raise ValueError(f"scores[{measure!r}]: {err}") from None
         rows.append({"measure": measure, **row})
     return pd.DataFrame(rows)
+
+
+def _check_bootstrap_args(rng: np.random.Generator, n_boot: int, level: float) -> None:
+    """The arguments every bootstrap here shares, checked where they enter."""
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
+    if int(n_boot) != n_boot or n_boot < 1:
+        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}.")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie strictly between 0 and 1 (e.g. 0.95), got {level!r}.")
