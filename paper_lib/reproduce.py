@@ -5,8 +5,8 @@
     python -m paper_lib.reproduce --retrain     # make retrain: plain `dvc repro`, trains missing or changed runs (hours)
 
 The default command runs only the stages that read committed files: each run's `score` stage
-where DVC finds it stale (its checkpoint, dataset or scoring code changed) and every table and
-figure stage, forced, for the runs that exist. Runs of the profile that lack a checkpoint,
+and the `guard` and `ensembles_scores` experiments where DVC finds them stale (their inputs or
+code changed), and every table and figure stage, forced, for the runs that exist. Runs of the profile that lack a checkpoint,
 dataset or evaluation are listed (printed and in results/<profile>/runs.md), never made. It
 calls DVC with `--single-item`, so no upstream stage (train, collect, evaluate) can run.
 """
@@ -34,7 +34,9 @@ from paper_lib.pipeline_status import (
 
 #: Table and figure stages in dependency order (paper_vs_us reads what rewards and ood write).
 TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
-                "example_states", "quickstart")
+                "example_states", "quickstart", "study", "scaling", "ensembles")
+#: Stages that simulate episodes from committed checkpoints: run only where DVC finds them stale.
+EXPERIMENT_STAGES = ("guard", "ensembles_scores")
 QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
 
 
@@ -78,11 +80,30 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
         "quickstart": has(cfg, (*QUICKSTART_RUN, 0), "checkpoint"),
     }
     ready["paper_vs_us"] = ready["rewards"] and ready["ood"]
+    results = cfg.results
+    ready["study"] = (results / "studies" / "studies.db").is_file()
+    ready["scaling"] = (results / "scaling").is_dir()
+    ready["ensembles"] = all((results / part).is_dir() for part in ("independent", "own", "scores"))
     why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
            "uncertainty_over_time": "no member-method run has scores",
            "training_and_perturbations": "no run has a checkpoint", "paper_vs_us": "it needs both rewards and ood",
-           "quickstart": f"its agent {' '.join(QUICKSTART_RUN)} seed 0 has no checkpoint"}
+           "quickstart": f"its agent {' '.join(QUICKSTART_RUN)} seed 0 has no checkpoint",
+           "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
+           "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
+           "ensembles": "it needs independent members, own runs and scored shared runs "
+                        "(`python -m paper_lib.ensembles queue`)"}
     return [s for s in TABLE_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in TABLE_STAGES if not ready[s]]
+
+
+def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
+    """(experiment stages whose inputs exist, lines saying why the others cannot run yet)."""
+    results = cfg.results
+    ready = {"guard": bool(available_runs(cfg, "checkpoint")),
+             "ensembles_scores": all((results / part / "checkpoints").is_dir() for part in ("independent", "own"))}
+    why = {"guard": "no run has a checkpoint",
+           "ensembles_scores": "no independent members or own runs trained yet (`python -m paper_lib.ensembles queue`)"}
+    return [s for s in EXPERIMENT_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in EXPERIMENT_STAGES
+                                                        if not ready[s]]
 
 
 def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
@@ -94,6 +115,11 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     if runs:
         _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
               *[f"score@{stage_suffix(*run)}" for run in runs]])
+    experiments, skipped = experiment_stages(cfg)
+    for line in skipped:
+        print(f"  {line}")
+    if experiments:
+        _dvc(["repro", "--single-item", *experiments])
     stages, skipped = table_stages(cfg)
     for line in skipped:
         print(f"  {line}")

@@ -441,6 +441,17 @@ def test_bad_guard_settings_are_one_clear_error():
                        "tiny", "guard")
 
 
+def test_a_guard_budget_can_cover_some_seeds_only():
+    good = TEST_GUARD
+    every = parse_settings(good, "tiny", "guard")
+    assert every.seeds is None and every.covers(0) and every.covers(2)
+    first = parse_settings({**good, "budgets": {"tiny": {**good["budgets"]["tiny"], "seeds": [0]}}}, "tiny", "guard")
+    assert first.covers(0) and not first.covers(1) and "seed(s) 0 only" in first.caption()
+    for bad in ([], [-1], "0", [True]):
+        with pytest.raises(ValueError, match="seeds must be a non-empty list"):
+            parse_settings({**good, "budgets": {"tiny": {**good["budgets"]["tiny"], "seeds": bad}}}, "tiny", "guard")
+
+
 # ------------------------------------------------------------------------------- notebook
 
 
@@ -455,14 +466,14 @@ def test_notebook_8_runs_at_the_tiny_budget(tiny_repo, tmp_path):
     results = tiny_repo / "results" / "tiny"
     for stem in ("guard_detection", "guard_returns"):
         for suffix in (".csv", ".md", ".tex"):
-            assert (results / "tables" / f"{stem}{suffix}").stat().st_size > 0
-        assert "profile 'tiny'" in (results / "tables" / f"{stem}.md").read_text().splitlines()[0]
+            assert (results / "tables" / "guard" / f"{stem}{suffix}").stat().st_size > 0
+        assert "profile 'tiny'" in (results / "tables" / "guard" / f"{stem}.md").read_text().splitlines()[0]
     for stem in ("guard_false_alarms", "guard_delay", "guard_trace"):
         for suffix in (".png", ".pdf"):
-            assert (results / "figures" / f"{stem}{suffix}").stat().st_size > 0
+            assert (results / "figures" / "guard" / f"{stem}{suffix}").stat().st_size > 0
     import pandas as pd
 
-    table = pd.read_csv(results / "tables" / "guard_detection.csv")
+    table = pd.read_csv(results / "tables" / "guard" / "guard_detection.csv")
     assert set(table.method) == {"baseline", "masksembles"} and set(table.guard) == {"state", "window", "cusum"}
     assert {"value_std", "mahalanobis_obs", "knn_features"} <= set(table.score)
     assert not table.query("method == 'baseline'").score.isin(["value_std", "policy_std", "policy_js"]).any()

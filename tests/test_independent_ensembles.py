@@ -314,7 +314,7 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
                           cwd=REPO, env=env, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
 
-    tables, figures = cfg.run.tables, cfg.run.figures
+    tables, figures = cfg.run.tables / "ensembles", cfg.run.figures / "ensembles"
     missing = pd.read_csv(tables / "ensembles_missing.csv")
     assert set(zip(missing["seed"], missing["run"], missing["artifact"])) == {(1, "shared", "checkpoint"),
                                                                               (1, "own", "checkpoint")}

@@ -9,6 +9,7 @@
       combine: [value_std, mahalanobis_obs]           # a rank combination of these, where all apply
       budgets:                  # per profile; may also override alpha and window
         tiny: {alpha: 0.2, window: 3, fit_episodes: 4, calibration_episodes: 8, ...}
+        paper: {..., seeds: [0]}   # optional: only these seeds of the profile's runs (default: all)
 
 Every error is raised here, naming the key and what to write, before any rollout.
 """
@@ -49,13 +50,18 @@ class GuardSettings:
     perturbed_episodes: int
     episode_steps: int
     change_steps: tuple[int, int]  # the change happens at a uniform step in [low, high]
+    seeds: tuple[int, ...] | None = None  # the runs' seeds the experiment covers (None: all of the profile's)
+
+    def covers(self, seed: int) -> bool:
+        return self.seeds is None or seed in self.seeds
 
     def caption(self) -> str:
         low, high = self.change_steps
         return (f"guard alpha {self.alpha:g}; {self.calibration_episodes} held-out ID calibration "
                 f"episodes, {self.id_test_episodes} ID and {self.perturbed_episodes} perturbed test episodes of "
                 f"{self.episode_steps} steps, the physics changing at a uniform step in [{low}, {high}]; window "
-                f"{self.window}; CUSUM drift = {self.cusum_quantile:g} quantile of held-out ID scores")
+                f"{self.window}; CUSUM drift = {self.cusum_quantile:g} quantile of held-out ID scores"
+                + ("" if self.seeds is None else f"; runs of seed(s) {', '.join(map(str, self.seeds))} only"))
 
 
 def _int(value: Any, where: str, minimum: int) -> int:
@@ -86,10 +92,16 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
         raise ValueError(f"{where}.budgets has no mapping for the active profile {profile!r} (has {have}); add "
                          f"`{profile}: {{{', '.join(f'{k}: ...' for k in BUDGET)}}}`")
     budget = budgets[profile]
-    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window"})
+    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window", "seeds"})
     if unknown:
-        raise ValueError(f"{where}.budgets.{profile}: unknown key(s) {unknown}; known: {list(BUDGET)} (and alpha, window)")
-    merged = {**{k: section.get(k) for k in SHARED}, **budget}
+        raise ValueError(f"{where}.budgets.{profile}: unknown key(s) {unknown}; known: {list(BUDGET)} "
+                         "(and alpha, window, seeds)")
+    seeds = budget.get("seeds")
+    if seeds is not None and not (isinstance(seeds, list) and seeds
+                                  and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
+        raise ValueError(f"{where}.budgets.{profile}: seeds must be a non-empty list of run seeds, e.g. [0], "
+                         f"or left out for all of them; got {seeds!r}")
+    merged = {**{k: section.get(k) for k in SHARED}, **{k: v for k, v in budget.items() if k != "seeds"}}
     missing = [k for k in SHARED + BUDGET if merged.get(k) is None]
     if missing:
         raise ValueError(f"{where}: {missing} not set for profile {profile!r}; set them in `guard` or in its budget")
@@ -127,7 +139,8 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
         raise ValueError(f"{here}: window={window} must be shorter than episode_steps={steps}")
     return GuardSettings(profile=profile, alpha=alpha, window=window, cusum_quantile=float(quantile),
                          fallback=merged["fallback"], fallback_scores=fallback_scores, combine=combine,
-                         episode_steps=steps, change_steps=(change[0], change[1]), **counts)
+                         episode_steps=steps, change_steps=(change[0], change[1]),
+                         seeds=None if seeds is None else tuple(seeds), **counts)
 
 
 def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, GuardSettings]:
