@@ -30,7 +30,8 @@ def probe_row(name: str, folder: Path, episodes: int, seed: int) -> dict:
     """Curve readings and evaluation reward of one probe run."""
     ckpt = load_checkpoint(folder)
     config, curve = ckpt.config, ckpt.training_curve()
-    row = {"probe": name, "method": config["method"], "steps": int(curve["timesteps"].iloc[-1]),
+    row = {"probe": name, "seed": int(config["seed"]), "method": config["method"],
+           "steps": int(curve["timesteps"].iloc[-1]),
            "dropout_p": config.get("dropout_p"), "masksembles_scale": config.get("masksembles_scale"),
            "policy": str(config.get("policy") or "SB3 defaults"), "normalize_obs": config.get("normalize_obs"),
            "wall_minutes": round(config.get("wall_seconds", float("nan")) / 60, 1)}
@@ -94,14 +95,27 @@ def ratio_clip_share(folder: Path, n_states: int = 400, clip_range: float = 0.1,
 
 
 def summarize(root: Path, extra: dict[str, Path], episodes: int = 5, seed: int = 0) -> pd.DataFrame:
-    folders = {f"{p.parent.parent.name}/{p.parent.name}": p for p in sorted(root.glob("*/*/seed*"))
-               if (p / "config.json").is_file()}
-    folders.update(extra)
-    rows = [probe_row(name, folder, episodes, seed) for name, folder in sorted(folders.items())]
-    df = pd.DataFrame(rows)
+    """One row per probe run (every seed folder of every variant, and the extra folders)."""
+    runs = [(f"{p.parent.parent.name}/{p.parent.name}", p) for p in sorted(root.glob("*/*/seed*"))
+            if (p / "config.json").is_file()]
+    runs += sorted(extra.items())
+    df = pd.DataFrame([probe_row(name, folder, episodes, seed) for name, folder in runs])
     marks = [c for c in df.columns if c.startswith("train@")]
-    return df[["probe", "method", "steps", *marks, "eval_deterministic", "eval_sampled", "dropout_p",
+    return df[["probe", "seed", "method", "steps", *marks, "eval_deterministic", "eval_sampled", "dropout_p",
                "masksembles_scale", "policy", "normalize_obs", "wall_minutes"]]
+
+
+def by_variant(df: pd.DataFrame) -> pd.DataFrame:
+    """Mean over a variant's seeds of each reading, with the seed count and each seed's train@300k."""
+    readings = [c for c in df.columns if c.startswith("train@")] + ["eval_deterministic", "eval_sampled"]
+    grouped = df.groupby("probe", sort=True)
+    out = grouped[readings].mean()
+    out.insert(0, "seeds", grouped["seed"].count())
+    if "train@300k" in df:
+        out["train@300k per seed"] = grouped.apply(
+            lambda g: " / ".join("-" if np.isnan(v) else f"{v:.0f}" for v in g.sort_values("seed")["train@300k"]),
+            include_groups=False)
+    return out.reset_index()
 
 
 def main() -> None:
@@ -131,9 +145,13 @@ def main() -> None:
     df = summarize(args.root, extra, args.episodes)
     caption = (f"Recipe probes: training reward (sampled actions, mean of the Monitor's last-100-episode mean over the "
                f"last 5% of steps before each mark) and the final agent's reward over {args.episodes} evaluation "
-               "episodes (combined inference), one seed (0). Hints for choosing the recipe, not results.")
+               "episodes (combined inference), one row per run. Hints for choosing the recipe, not results.")
     save_table(df, args.root / "summary", caption, float_format="%.1f")
-    print(df.to_string(float_format=lambda v: f"{v:.1f}" if np.isfinite(v) else "-"))
+    variants = by_variant(df)
+    save_table(variants, args.root / "summary_by_variant",
+               "Recipe probes averaged over each variant's seeds (the readings of summary.md; per-seed training reward "
+               "at 300k in the last column).", float_format="%.1f")
+    print(variants.to_string(float_format=lambda v: f"{v:.1f}" if np.isfinite(v) else "-"))
 
 
 if __name__ == "__main__":
