@@ -46,7 +46,7 @@ class RunConfig:
     envs: list[str]
     methods: list[str]
     seeds: list[int]
-    total_timesteps: int | None
+    total_timesteps: int | dict[str, int] | None  # None: each env's own; a mapping: per env (others their own)
     overrides: dict[str, Any]
     n_id_states: int
     n_ood_states: int
@@ -85,8 +85,21 @@ class RunConfig:
     def runs(self) -> list[tuple[str, str, int]]:
         return [(e, m, s) for e in self.envs for m in self.methods for s in self.seeds]
 
+    def budget(self, env_id: str) -> int | None:
+        """Training steps of a run in env_id under this profile; None: the env's own (the paper's) budget."""
+        if isinstance(self.total_timesteps, dict):
+            return self.total_timesteps.get(env_id)
+        return self.total_timesteps
+
+    def steps_caption(self) -> str:
+        """The training budget in words, for captions."""
+        if isinstance(self.total_timesteps, dict):
+            changed = ", ".join(f"{env_id} {steps:,}" for env_id, steps in self.total_timesteps.items())
+            return f"the paper's (except {changed})"
+        return f"{self.total_timesteps:,}" if self.total_timesteps else "the paper's"
+
     def budget_caption(self) -> str:
-        steps = self.total_timesteps or "the paper's"
+        steps = self.steps_caption()
         return (f"profile '{self.profile}': {len(self.seeds)} seed(s) {self.seeds}, {steps} training steps per run, "
                 f"{self.eval_episodes} evaluation episodes; {self.protocol_caption()}; the paper used 3 seeds")
 
@@ -170,8 +183,15 @@ def validate_profile(profile: Any, where: str, hps: dict[str, Any]) -> None:
             raise ValueError(f"{where}: unknown method {method!r}; use one of {METHODS}")
     for seed in _check_list(profile["seeds"], "seeds", where):
         check_seed(seed, where)
-    if profile["total_timesteps"] is not None:
-        check_integer(profile["total_timesteps"], "total_timesteps", where, minimum=1)
+    budget = profile["total_timesteps"]
+    if isinstance(budget, dict):
+        for env_id, steps in budget.items():
+            if env_id not in hps:
+                raise ValueError(f"{where}: total_timesteps names unknown env {env_id!r}; params.yaml has "
+                                 f"hyperparameters for {sorted(hps)}")
+            check_integer(steps, f"total_timesteps.{env_id}", where, minimum=1)
+    elif budget is not None:
+        check_integer(budget, "total_timesteps", where, minimum=1)
     overrides = profile["overrides"] if profile["overrides"] is not None else {}
     check_algo_settings(overrides, where, name="overrides", required=False)
     for key in POSITIVE:

@@ -132,7 +132,7 @@ class EnsemblesConfig:
     def member_budget(self, env_id: str) -> tuple[int, int]:
         """(training steps, n_epochs) of one independent member: a fraction of the steps, a multiple of the epochs."""
         hp = self.run.hyperparameters[env_id]
-        full = self.full_timesteps or self.run.total_timesteps or hp["total_timesteps"]
+        full = self.full_timesteps or self.run.budget(env_id) or hp["total_timesteps"]
         epochs = (self.run.overrides or {}).get("n_epochs", hp["algo"]["n_epochs"])
         return max(1, round(self.budget_fraction * full)), self.epochs_factor * epochs
 
@@ -188,7 +188,7 @@ class EnsemblesConfig:
 
     def own_caption(self) -> str:
         """The budget of the own-vs-shared comparison, for table captions."""
-        steps = f"{self.run.total_timesteps:,}" if self.run.total_timesteps else "the paper's"
+        steps = self.run.steps_caption()
         return (f"profile '{self.run.profile}': seeds {self.own_seeds}, {steps} training steps per run (the main "
                 f"matrix's recipe and budget), {self.run.eval_episodes} evaluation episodes; "
                 f"{self.run.protocol_caption()}")
@@ -264,7 +264,7 @@ def member_train_args(cfg: EnsemblesConfig, env_id: str) -> tuple[int, dict[str,
 
 def own_train_args(cfg: EnsemblesConfig, env_id: str) -> tuple[int | None, dict[str, Any]]:
     """(total_timesteps, agent_kwargs) of an `own` run: the main matrix's recipe and budget, assignment own."""
-    return cfg.run.total_timesteps, {"hyperparameters": cfg.run.hyperparameters[env_id],
+    return cfg.run.budget(env_id), {"hyperparameters": cfg.run.hyperparameters[env_id],
                                      "overrides": cfg.run.overrides or None, "inference": cfg.run.inference,
                                      "assignment": "own"}
 
@@ -307,8 +307,8 @@ def run_command(cfg: EnsemblesConfig, assignment: str, env_id: str, method: str,
                 resume_root: str | None = None, python: str = ".venv/bin/python") -> str:
     """The training line of an `own` run, or of a missing `shared` twin as the main matrix trains it."""
     args = [env_id, method, str(seed), str(cfg.tree(assignment).checkpoint_dir(env_id, method, seed))]
-    if cfg.run.total_timesteps is not None:
-        args.append(f"--timesteps {cfg.run.total_timesteps}")
+    if cfg.run.budget(env_id) is not None:
+        args.append(f"--timesteps {cfg.run.budget(env_id)}")
     if assignment == "own":
         args.append("--assignment own")
     return _train_line(args + _hp_flags(cfg.run.overrides or {}), resume_root, python)
@@ -348,7 +348,7 @@ def own_problem(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> st
     hp = cfg.run.hyperparameters[env_id]
     expected = dict(env_id=env_id, method=method, seed=seed, assignment="own",
                     algo_kwargs={**hp["algo"], **(cfg.run.overrides or {})},
-                    total_timesteps=cfg.run.total_timesteps or hp["total_timesteps"])
+                    total_timesteps=cfg.run.budget(env_id) or hp["total_timesteps"])
     differ = [k for k, v in expected.items() if config.get(k) != v]
     return f"trained with other {differ}; retrain it" if differ else None
 

@@ -30,7 +30,7 @@ def train_stage(cfg: RunConfig, env_id: str, method: str, seed: int, **train_kwa
         raise ValueError(f"params.yaml has no hyperparameters for {env_id!r}; known: {sorted(cfg.hyperparameters)}")
     agent_kwargs = {"hyperparameters": cfg.hyperparameters[env_id], "overrides": cfg.overrides or None,
                     "inference": cfg.inference}
-    return train_run(env_id, method, seed, cfg.checkpoint_dir(env_id, method, seed), total_timesteps=cfg.total_timesteps,
+    return train_run(env_id, method, seed, cfg.checkpoint_dir(env_id, method, seed), total_timesteps=cfg.budget(env_id),
                      agent_kwargs=agent_kwargs, **train_kwargs)
 
 

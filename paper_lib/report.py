@@ -94,8 +94,7 @@ def coverage(cfg, runs: list[tuple[str, str, int]], methods: list[str] | None = 
 
 def caption(cfg, runs: list[tuple[str, str, int]], seeds: str, *details: str) -> str:
     """The parenthesis every table caption ends with: which runs, how many seeds per cell, the budget."""
-    steps = f"{cfg.total_timesteps:,}" if cfg.total_timesteps else "the paper's"
-    return "; ".join([coverage(cfg, runs), seeds, f"{steps} training steps per run", *details, "the paper used 3 seeds"])
+    return "; ".join([coverage(cfg, runs), seeds, f"{cfg.steps_caption()} training steps per run", *details, "the paper used 3 seeds"])
 
 
 def _span(values: pd.Series) -> str:

@@ -30,7 +30,11 @@ def test_committed_profile_is_valid_and_profiles_switch(params):
     cfg = load_run_config(params)
     assert cfg.profile == "tiny" and cfg.results.name == "tiny"
     use_profile("paper", params)
-    assert load_run_config(params).seeds == [0, 1, 2]
+    paper = load_run_config(params)
+    assert paper.seeds == [0, 1, 2]
+    # Ant at 1e6 steps, not the paper's 1e7 (README, "Deviations"); every other env at its own budget
+    assert paper.budget("Ant-v5") == 1_000_000 and paper.budget("HalfCheetah-v5") is None
+    assert "the paper's (except Ant-v5 1,000,000)" in paper.budget_caption()
 
 
 def test_params_hyperparameters_match_the_packaged_paper_table():
@@ -46,6 +50,8 @@ def test_params_hyperparameters_match_the_packaged_paper_table():
     (lambda p: p["run"].update(seeds=[]), "seeds must be a non-empty list"),
     (lambda p: p["run"].update(n_id_states=0), "n_id_states must be a positive integer"),
     (lambda p: p["run"].pop("eval_episodes"), "lacks"),
+    (lambda p: p["run"].update(total_timesteps={"Hopper-v5": 1000}), "total_timesteps names unknown env 'Hopper-v5'"),
+    (lambda p: p["run"].update(total_timesteps={"Ant-v5": 0}), "total_timesteps.Ant-v5"),
 ])
 def test_bad_params_name_the_file_and_the_fix(params, edit, match):
     data = yaml.safe_load(params.read_text())
