@@ -16,7 +16,7 @@ import pandas as pd
 
 from paper_lib.config import RunConfig, load_run_config
 from paper_lib.io import write_text_atomic
-from paper_lib.run_results import SCORE_FILES, evaluation_path, scores_dir
+from paper_lib.run_results import evaluation_path, score_files, scores_dir
 
 Run = tuple[str, str, int]
 #: What a run can have, in pipeline order, and the command that makes each.
@@ -43,7 +43,7 @@ def has(cfg: RunConfig, run: Run, artifact: str) -> bool:
     if artifact == "evaluation":
         return evaluation_path(cfg, *run).is_file()
     if artifact == "scores":
-        return all((scores_dir(cfg, *run) / name).is_file() for name in SCORE_FILES)
+        return all((scores_dir(cfg, *run) / name).is_file() for name in score_files(run[0]))
     raise ValueError(f"unknown artifact {artifact!r}; use one of {list(ARTIFACTS)}")
 
 

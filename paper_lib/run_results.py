@@ -16,6 +16,8 @@ Files (profile P, env E, method M, seed S):
                               over_time.csv  the first ID states, then the first OOD states, scored per step
                               perturbation_ratios.csv  uncertainty on perturbed ID states / on ID states
                               replicates.npy  AUROC bootstrap replicates, row i for metrics.csv row i
+                              source_coverage.csv  Atari only: did the ID rollouts reach the OOD source's
+                                                   game states (paper_lib.ood.coverage), one row
 """
 
 from __future__ import annotations
@@ -28,11 +30,14 @@ import pandas as pd
 import torch as th
 
 from paper_lib.config import RunConfig, load_run_config
+from paper_lib.envs import is_atari
 from paper_lib.io import atomic_dir, write_text_atomic
 
 #: FPR values at which each ROC curve is kept (the TPR reachable at FPR <= x).
 ROC_GRID = np.linspace(0.0, 1.0, 201)
 SCORE_FILES = ("metrics.csv", "roc.csv", "over_time.csv", "perturbation_ratios.csv", "replicates.npy")
+#: Atari runs add the check that the agent's ID rollouts never reached the OOD source's game states.
+ATARI_SCORE_FILES = ("source_coverage.csv",)
 OVER_TIME_MEASURES = ("value_std", "policy_std", "policy_js")
 OVER_TIME_STATES = 1000  # ID states, then OOD states, kept per run for the over-time figures
 
@@ -43,6 +48,11 @@ def evaluation_path(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
 
 def scores_dir(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     return cfg.results / "scores" / env_id / method / f"seed{seed}"
+
+
+def score_files(env_id: str) -> tuple[str, ...]:
+    """The files a run's scores folder holds once scored: Atari runs have the source coverage check too."""
+    return SCORE_FILES + (ATARI_SCORE_FILES if is_atari(env_id) else ())
 
 
 def _csv(df: pd.DataFrame) -> str:
@@ -145,6 +155,10 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     else:
         files["over_time.csv"] = first_episodes(ckpt.model, data).assign(**tag)
         files["perturbation_ratios.csv"] = perturbation_ratios(ckpt, data, np.random.default_rng(seed)).assign(**tag)
+    if is_atari(env_id):
+        from paper_lib.ood.coverage import source_coverage
+
+        files["source_coverage.csv"] = source_coverage(data).assign(**tag)
     out = scores_dir(cfg, env_id, method, seed)
     with atomic_dir(out) as tmp:
         for name, df in files.items():
@@ -187,6 +201,20 @@ def read_scores(cfg: RunConfig, runs: list[tuple[str, str, int]], name: str) -> 
     frames = [pd.read_csv(scores_dir(cfg, *run) / f"{name}.csv") for run in runs]
     frames = [f for f in frames if not f.empty] or frames[:1]
     return pd.concat(frames, ignore_index=True)
+
+
+def read_source_coverage(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
+    """The source coverage rows (one per run) of the Atari runs among `runs`, for a table; empty if none."""
+    from paper_lib.ood.coverage import COVERAGE_COLUMNS
+
+    paths = [scores_dir(cfg, *run) / ATARI_SCORE_FILES[0] for run in runs if is_atari(run[0])]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"no source coverage file {missing[0]} ({len(missing)} missing): score those runs "
+                                "again (`python -m paper_lib.run_results score <env> <method> <seed>`).")
+    frames = [pd.read_csv(p) for p in paths]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*COVERAGE_COLUMNS, "env",
+                                                                                     "method", "seed"])
 
 
 def main(argv: list[str] | None = None) -> None:

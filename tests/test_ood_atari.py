@@ -14,9 +14,11 @@ from paper_lib.ood.atari import (
     OOD_SOURCE_NOTES,
     AtariOODConfig,
     describe_source,
+    indicator_name,
     make_atari_env_single,
     make_ood_atari_env,
     ood_sources,
+    read_indicator,
     sample_atari_config,
     source_values,
 )
@@ -131,3 +133,18 @@ def test_invalid_inputs_raise_where_they_enter():
         make_ood_atari_env({"game": "MsPacman", "source": "maze", "value": 1})  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="seed=-3"):
         make_atari_env_single("Berzerk", seed=-3)
+
+
+@pytest.mark.parametrize("game", ATARI_GAMES)
+def test_the_indicator_reads_what_the_default_source_sets(game):
+    """The coverage check reads this on the ID rollouts: the default game reads no OOD value, an edited one its value."""
+    source = DEFAULT_SOURCE[game]
+    id_env = make_atari_env_single(game, seed=0)
+    id_env.reset()
+    assert read_indicator(id_env, game, source) not in source_values(game, source)
+    for value in (source_values(game, source)[0], source_values(game, source)[-1]):
+        env = make_ood_atari_env(AtariOODConfig(game, source, value, seed=0))
+        env.reset()
+        assert read_indicator(env, game, source) == value
+    expected = {"Seaquest": "RAM 61", "MsPacman": "RAM 0", "Berzerk": "RAM 92", "SpaceInvaders": "ALE mode"}
+    assert indicator_name(game, source) == expected[game]

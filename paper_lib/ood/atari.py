@@ -157,6 +157,34 @@ def describe_source(game: str, source: str) -> str:
     return f"{game} {source} ({how}): {spec.what}"
 
 
+def indicator_name(game: str, source: str) -> str:
+    """What ``read_indicator`` reads for a source: "RAM 92", "ALE mode", ...
+
+    A RAM source is read at its first address (Seaquest's level at RAM 61, not the patrol
+    counter at 60, which the game sets to the same value).
+    """
+    source_values(game, source)  # validates
+    spec = _SOURCES[game][source]
+    return f"RAM {spec.ram[0]}" if spec.ram else f"ALE {spec.make_arg}"
+
+
+def read_indicator(env: gym.Env, game: str, source: str) -> int:
+    """The current value of ``source``'s indicator in ``env`` (one made by this module).
+
+    This is the quantity the source sets to one of its OOD values: the RAM byte (the game's
+    own counter, so ID play may reach it: that is what the coverage check looks for), or the
+    mode or difficulty the env was made with (ALE's default, the lowest available one for
+    these four games, when none was given: ID play can never change it).
+    """
+    source_values(game, source)  # validates
+    spec = _SOURCES[game][source]
+    ale = env.unwrapped.ale
+    if spec.ram:
+        return int(ale.getRAM()[spec.ram[0]])
+    available = ale.getAvailableModes() if spec.make_arg == "mode" else ale.getAvailableDifficulties()
+    return int(env.unwrapped.spec.kwargs.get(spec.make_arg, min(available)))
+
+
 @dataclass(frozen=True)
 class AtariOODConfig:
     """One OOD environment: ``game`` started in ``source`` at strength ``value``; ``seed`` seeds the env."""

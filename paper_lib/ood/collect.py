@@ -42,7 +42,16 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack,
 
 from paper_lib.envs import N_STACK, is_atari, make_single_env, register_atari
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
-from paper_lib.ood.atari import ATARI_GAMES, make_atari_env_single, make_ood_atari_env, sample_atari_config
+from paper_lib.ood.atari import (
+    ATARI_GAMES,
+    DEFAULT_SOURCE,
+    indicator_name,
+    make_atari_env_single,
+    make_ood_atari_env,
+    read_indicator,
+    sample_atari_config,
+    source_values,
+)
 from paper_lib.ood.datasets import ID_LABEL, NO_CONFIG, OOD_LABEL, StateDataset
 from paper_lib.ood.mujoco import (
     SUPPORTED_ENVS,
@@ -198,6 +207,7 @@ class _Episode:
     states: list[np.ndarray] = field(default_factory=list)
     policy_obs: list[np.ndarray] = field(default_factory=list)
     steps: list[int] = field(default_factory=list)
+    indicator: list[int] = field(default_factory=list)
     unstable: str | None = None
     next_obs: np.ndarray | None = None  # the next episode's first obs after the env ended and auto-reset
 
@@ -211,6 +221,7 @@ class _Run:
     config_json: str | None
     describe: str
     check: Callable[[VecEnv, np.ndarray, bool], str | None] | None = None
+    indicator: Callable[[], int] | None = None  # the OOD source's indicator now (Atari), read per kept state
 
 
 def _mujoco_instability(venv: VecEnv, obs: np.ndarray, reset_happened: bool) -> str | None:
@@ -239,6 +250,8 @@ def _run_episode(run: _Run, obs: np.ndarray, actor: _Actor, max_episode_steps: i
             if actor.vecnormalize is not None:  # else policy_obs is obs: no second copy of every frame
                 episode.policy_obs.append(policy_obs[0].copy())
             episode.steps.append(t)
+            if run.indicator is not None:
+                episode.indicator.append(run.indicator())
             if len(episode.steps) >= budget:
                 return episode
         obs, _, dones, infos = run.venv.step(actor.act(policy_obs))
@@ -263,6 +276,7 @@ class _Buffer:
     config_index: list[int] = field(default_factory=list)
     episode: list[int] = field(default_factory=list)
     step: list[int] = field(default_factory=list)
+    indicator: list[int] = field(default_factory=list)
     configs: list[str] = field(default_factory=list)
     n_episodes: int = 0
 
@@ -280,6 +294,7 @@ class _Buffer:
             self.states += ep.states
             self.policy_obs += ep.policy_obs
             self.step += ep.steps
+            self.indicator += ep.indicator
             self.source += [run.source] * n
             self.config_index += [index] * n
             self.episode += [self.n_episodes] * n
@@ -290,6 +305,7 @@ class _Buffer:
             states=np.stack(self.states), labels=np.full(len(self.states), label), source=self.source,
             config_index=self.config_index, episode=self.episode, step=self.step, configs=self.configs,
             metadata=metadata, policy_obs=np.stack(self.policy_obs) if with_policy_obs else None,
+            source_indicator=np.array(self.indicator) if self.indicator else None,
         )
 
 
@@ -389,6 +405,16 @@ def _atari_game(env_id: str) -> str:
     return game
 
 
+def _indicator_reader(env: gym.Env, game: str, source: str) -> Callable[[], int]:
+    """Reads ``source``'s indicator from ``env``'s emulator, for ``_Run.indicator``."""
+    return lambda: read_indicator(env, game, source)
+
+
+def _indicator_metadata(game: str, source: str) -> dict[str, str]:
+    """What a dataset's ``source_indicator`` holds: the source and the quantity read."""
+    return {"game": game, "source": source, "read": indicator_name(game, source)}
+
+
 def _atari_venv(env: gym.Env) -> VecEnv:
     """One env stacked like the agent's training env: (1, 84, 84, 4) uint8."""
     return VecFrameStack(DummyVecEnv([lambda: env]), N_STACK)
@@ -417,30 +443,40 @@ def _check_env_id(env_id: str) -> None:
 def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int | None = None, *,
                       action_mode: ActionMode, seed: int, max_episode_steps: int = 500, skip_first: int = 10,
                       episodes: int | None = None, steps_per_episode: int | None = None,
-                      vecnormalize: VecNormalize | None = None) -> StateDataset:
+                      vecnormalize: VecNormalize | None = None, indicator_source: str | None = None) -> StateDataset:
     """ID states: the agent acting in the unmodified env, one fresh env seed per run.
 
     Default, the main-text protocol's counterpart (``ID_MAIN_PROTOCOL``): ``episodes`` runs of
     exactly ``steps_per_episode`` kept states each (restarting within the run if an episode
     ends early); ``n_states`` alone: appendix G's, a fresh env seed per episode until
     ``n_states``. Same ``max_episode_steps`` / ``skip_first`` as the OOD collection, so both
-    samples cover the same part of an episode. Atari envs are wrapped like the OOD ones.
+    samples cover the same part of an episode. Atari envs are wrapped like the OOD ones, and
+    every kept state records the indicator of ``indicator_source`` (the game's default OOD
+    source if None; give the source the OOD states will come from), so the coverage check
+    (``paper_lib.ood.coverage``) uses exactly these rollouts.
     """
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be a gymnasium id string, got {type(env_id).__name__}.")
     _check_env_id(env_id)
+    game = _atari_game(env_id) if is_atari(env_id) else None
+    if game is None and indicator_source is not None:
+        raise ValueError(f"indicator_source={indicator_source!r} applies to Atari games only; drop it for {env_id}.")
+    if game is not None:
+        indicator_source = DEFAULT_SOURCE[game] if indicator_source is None else indicator_source
+        source_values(game, indicator_source)  # a bad source fails here, before any rollout
     n_states, steps_per_run, protocol_name = _protocol(n_states, episodes, steps_per_episode, ID_MAIN_PROTOCOL)
     actor, policy_kind = _prepare(model, env_id, n_states, action_mode, seed, max_episode_steps, skip_first,
                                   vecnormalize)
     rng = np.random.default_rng(seed)
-    if is_atari(env_id):
+    if game is not None:
         register_atari()
 
     def next_run() -> _Run:
         env_seed = int(rng.integers(2**31 - 1))
-        if is_atari(env_id):
-            venv = _atari_venv(make_atari_env_single(_atari_game(env_id), seed=env_seed))
-            return _Run(venv, "id", None, f"{env_id} (seed {env_seed})")
+        if game is not None:
+            env = make_atari_env_single(game, seed=env_seed)
+            return _Run(_atari_venv(env), "id", None, f"{env_id} (seed {env_seed})",
+                        indicator=_indicator_reader(env, game, indicator_source))
         venv = _seeded_venv(make_single_env(env_id), env_seed)
         check = _mujoco_instability if env_id in SUPPORTED_ENVS else None
         return _Run(venv, "id", None, f"{env_id} (seed {env_seed})", check)
@@ -450,7 +486,9 @@ def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: 
                     max_episode_steps=max_episode_steps, skip_first=skip_first)
     if protocol_name == "main":
         protocol.update(episodes=episodes or ID_MAIN_PROTOCOL["episodes"], steps_per_episode=steps_per_run)
-    metadata = _metadata("id", env_id, model, action_mode, policy_kind, seed, vecnormalize, protocol, buffer, rejected)
+    extra = {} if game is None else {"source_indicator": _indicator_metadata(game, indicator_source)}
+    metadata = _metadata("id", env_id, model, action_mode, policy_kind, seed, vecnormalize, protocol, buffer, rejected,
+                         **extra)
     return buffer.dataset(ID_LABEL, metadata, with_policy_obs=vecnormalize is not None)
 
 
@@ -500,7 +538,9 @@ def collect_atari_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_s
 
     The same protocols as MuJoCo (default: the main text's); ``source`` picks the kind of
     edit (the game's default if None, see ``paper_lib.ood.atari.OOD_SOURCE_NOTES``). An
-    "episode" is what the agent's wrappers call one: it ends at a lost life.
+    "episode" is what the agent's wrappers call one: it ends at a lost life. Every kept state
+    records the source's indicator, which shows the edit in force (or, for a game counter
+    such as Berzerk's rooms, moved on by play).
     """
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be an Atari id like 'SeaquestNoFrameskip-v4', got {type(env_id).__name__}.")
@@ -513,14 +553,15 @@ def collect_atari_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_s
 
     def next_run() -> _Run:
         config = sample_atari_config(game, rng, source)
-        venv = _atari_venv(make_ood_atari_env(config))
-        return _Run(venv, config.source, config.to_json(), f"{game} {config.source}={config.value}")
+        env = make_ood_atari_env(config)
+        return _Run(_atari_venv(env), config.source, config.to_json(), f"{game} {config.source}={config.value}",
+                    indicator=_indicator_reader(env, game, config.source))
 
     buffer, rejected = _collect(actor, next_run, n_states, steps_per_config, max_episode_steps, skip_first, seed)
     protocol = dict(name=protocol_name, n_states=int(n_states), max_episode_steps=max_episode_steps,
                     skip_first=skip_first, configs=configs, steps_per_config=steps_per_config)
     metadata = _metadata("atari_ood", env_id, model, action_mode, policy_kind, seed, None, protocol, buffer, rejected,
-                         source=source)
+                         source=source, source_indicator=_indicator_metadata(game, source or DEFAULT_SOURCE[game]))
     return buffer.dataset(OOD_LABEL, metadata, with_policy_obs=False)
 
 

@@ -9,6 +9,13 @@ says how the file was made.
 ``states`` are raw env observations (before any VecNormalize), so detectors and
 plots see physical quantities; ``policy_obs`` holds what the policy saw when the
 agent was trained with VecNormalize (Walker2d), so scores use the policy's input.
+``source_indicator`` (Atari) holds, per state, the value of the OOD source's indicator
+(e.g. Berzerk's room counter, RAM 92) while the state was played, so the ID rollouts can
+be checked never to have reached the OOD states (``paper_lib.ood.coverage``).
+
+Files: frame stacks (Atari) are stored as their frame sequence, lzma-compressed
+(``frame_store``, format 2, bit-identical on load); other states as they are (format 1).
+Both formats load.
 """
 
 from __future__ import annotations
@@ -22,10 +29,13 @@ from typing import Any
 import numpy as np
 
 from paper_lib.io import remove_stale_temps, save_npz_atomic
+from paper_lib.ood import frame_store
 
-FORMAT = "paper_lib.StateDataset/1"
+FORMAT = "paper_lib.StateDataset/1"  # states stored as they are
+FORMAT_FRAMES = "paper_lib.StateDataset/2"  # frame stacks stored as their lzma-compressed frame sequence
 ID_LABEL, OOD_LABEL = 0, 1
 NO_CONFIG = -1  # config_index of a state collected in the unmodified env
+NOT_RECORDED = -1  # source_indicator of a state whose collection did not read one
 
 
 def _json_normalized(obj: Any, what: str) -> Any:
@@ -53,6 +63,7 @@ class StateDataset:
     configs: list[str] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)
     policy_obs: np.ndarray | None = None  # (N, *obs_shape) normalized obs, only with VecNormalize
+    source_indicator: np.ndarray | None = None  # (N,) int, the OOD source's indicator (Atari); -1 = not read
 
     def __post_init__(self) -> None:
         self.states = np.asarray(self.states)
@@ -81,6 +92,8 @@ class StateDataset:
             self.policy_obs = np.asarray(self.policy_obs)
             if len(self.policy_obs) != n:
                 raise ValueError(f"policy_obs has {len(self.policy_obs)} rows but there are {n} states.")
+        if self.source_indicator is not None:
+            self.source_indicator = _indicator_array(self.source_indicator, n)
 
     def __len__(self) -> int:
         return len(self.states)
@@ -103,6 +116,9 @@ class StateDataset:
         same &= (self.policy_obs is None) == (other.policy_obs is None)
         if self.policy_obs is not None and other.policy_obs is not None:
             same &= np.array_equal(self.policy_obs, other.policy_obs)
+        same &= (self.source_indicator is None) == (other.source_indicator is None)
+        if self.source_indicator is not None and other.source_indicator is not None:
+            same &= np.array_equal(self.source_indicator, other.source_indicator)
         return bool(same and self.configs == other.configs and self.metadata == other.metadata)
 
     # --------------------------------------------------------------- selection
@@ -123,6 +139,7 @@ class StateDataset:
             config_index=self.config_index[mask], episode=self.episode[mask], step=self.step[mask],
             configs=list(self.configs), metadata=dict(self.metadata),
             policy_obs=None if self.policy_obs is None else self.policy_obs[mask],
+            source_indicator=None if self.source_indicator is None else self.source_indicator[mask],
         )
 
     def id_only(self) -> StateDataset:
@@ -133,38 +150,72 @@ class StateDataset:
 
     # --------------------------------------------------------------------- I/O
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write one compressed ``.npz`` (atomic); configs and metadata go in as JSON text."""
+        """Write one compressed ``.npz`` (atomic); configs and metadata go in as JSON text.
+
+        Frame stacks go in as their frame sequence (format 2: 10-30x smaller, exact on load).
+        """
         arrays: dict[str, np.ndarray] = dict(
             format=np.array(FORMAT), states=self.states, labels=self.labels, source=self.source,
             config_index=self.config_index, episode=self.episode, step=self.step,
             configs=np.array(json.dumps(self.configs)), metadata=np.array(json.dumps(self.metadata, sort_keys=True)),
         )
+        if frame_store.is_frame_stacks(self.states):
+            del arrays["states"]
+            frames, new_stack = frame_store.to_frames(self.states)
+            arrays.update(format=np.array(FORMAT_FRAMES), frames_xz=frame_store.pack(frames), new_stack=new_stack,
+                          state_shape=np.array(self.states.shape[1:], dtype=np.int64))
         if self.policy_obs is not None:
             arrays["policy_obs"] = self.policy_obs
+        if self.source_indicator is not None:
+            arrays["source_indicator"] = self.source_indicator
         remove_stale_temps(path)  # temp files of a writer killed before its rename
         return save_npz_atomic(path, **arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> StateDataset:
-        """Read a file written by ``save``; a missing or damaged file raises a clear error."""
+        """Read a file written by ``save`` (either format); a missing or damaged file raises a clear error."""
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"No StateDataset at {path}: run the collection that writes it first, "
                                     "or check the path.")
         try:
             with np.load(path, allow_pickle=False) as f:
-                if "format" not in f.files or str(f["format"]) != FORMAT:
-                    raise ValueError(f"it has no '{FORMAT}' format tag")
+                fmt = str(f["format"]) if "format" in f.files else None
+                if fmt not in (FORMAT, FORMAT_FRAMES):
+                    raise ValueError(f"it has no '{FORMAT}' or '{FORMAT_FRAMES}' format tag")
                 data = {k: f[k] for k in f.files}
             return cls(
-                states=data["states"], labels=data["labels"], source=data["source"],
+                states=_stored_states(data, fmt), labels=data["labels"], source=data["source"],
                 config_index=data["config_index"], episode=data["episode"], step=data["step"],
                 configs=json.loads(str(data["configs"])), metadata=json.loads(str(data["metadata"])),
-                policy_obs=data.get("policy_obs"),
+                policy_obs=data.get("policy_obs"), source_indicator=data.get("source_indicator"),
             )
-        except Exception as err:  # zip, npy, JSON and field errors all mean one thing here
+        except Exception as err:  # zip, npy, lzma, JSON and field errors all mean one thing here
             raise ValueError(f"{path} is not a readable StateDataset ({type(err).__name__}: {err}); the file is "
                              "damaged or was written by something else: delete it and re-run the collection.") from err
+
+
+def _stored_states(data: dict[str, np.ndarray], fmt: str) -> np.ndarray:
+    """The states of a loaded file, rebuilt from the frame store in format 2."""
+    if fmt == FORMAT:
+        return data["states"]
+    shape = tuple(int(v) for v in data["state_shape"])
+    if len(shape) != 3:
+        raise ValueError(f"state_shape {shape} is not (H, W, k)")
+    frames = frame_store.unpack(data["frames_xz"], shape[:2])
+    return frame_store.from_frames(frames, data["new_stack"], shape[2])
+
+
+def _indicator_array(values: np.ndarray, n: int) -> np.ndarray:
+    """``values`` as an (n,) int16 array of indicator values (0-255 RAM bytes, modes) or NOT_RECORDED."""
+    arr = np.asarray(values)
+    if arr.shape != (n,) or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"source_indicator has shape {arr.shape} and dtype {arr.dtype}; give one int per state "
+                         f"({n}), {NOT_RECORDED} where none was read.")
+    if arr.size and (arr.min() < NOT_RECORDED or arr.max() > np.iinfo(np.int16).max):
+        raise ValueError(f"source_indicator holds values in [{arr.min()}, {arr.max()}]: indicators are RAM bytes or "
+                         f"ALE modes (>= 0), or {NOT_RECORDED} where none was read.")
+    return arr.astype(np.int16)
 
 
 def concat(a: StateDataset, b: StateDataset) -> StateDataset:
@@ -206,4 +257,14 @@ def concat(a: StateDataset, b: StateDataset) -> StateDataset:
         episode=np.concatenate([a.episode, b.episode]), step=np.concatenate([a.step, b.step]),
         configs=configs, metadata=metadata,
         policy_obs=None if a.policy_obs is None else np.concatenate([a.policy_obs, b.policy_obs]),
+        source_indicator=_concat_indicators(a, b),
     )
+
+
+def _concat_indicators(a: StateDataset, b: StateDataset) -> np.ndarray | None:
+    """Both parts' indicators, NOT_RECORDED for the states of a part that has none; None if neither has."""
+    if a.source_indicator is None and b.source_indicator is None:
+        return None
+    parts = [d.source_indicator if d.source_indicator is not None else np.full(len(d), NOT_RECORDED, np.int16)
+             for d in (a, b)]
+    return np.concatenate(parts)
