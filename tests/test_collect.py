@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import TINY
-from paper_lib import make_agent
+from paper_lib import make_agent, paper_hyperparameters
 from paper_lib.ood import collect
 from paper_lib.ood.atari import AtariOODConfig
 from paper_lib.ood.collect import (
@@ -29,11 +29,13 @@ ENV = "HalfCheetah-v5"
 SAMPLED = ActionMode(deterministic=False)
 # Short episodes so that a few dozen states span several episodes (and configurations).
 SHORT = {"max_episode_steps": 20, "skip_first": 5}
+#: These tests collect raw observations; the normalized path (Walker2d) has a test of its own below.
+RAW_HP = {**paper_hyperparameters(ENV), "normalize_obs": False}
 
 
 @pytest.fixture(scope="module")
 def cheetah():
-    model = make_agent("ppo", "masksembles", ENV, seed=0, overrides=dict(TINY))
+    model = make_agent("ppo", "masksembles", ENV, seed=0, overrides=dict(TINY), hyperparameters=RAW_HP)
     model.learn(128)
     return model
 
@@ -112,7 +114,7 @@ def test_main_text_protocol_is_the_default_and_id_states_follow_it(cheetah):
 
 
 def test_scoring_is_seeded(cheetah, id_states):
-    mc = make_agent("ppo", "mc_dropconnect", ENV, seed=0, overrides=dict(TINY))
+    mc = make_agent("ppo", "mc_dropconnect", ENV, seed=0, overrides=dict(TINY), hyperparameters=RAW_HP)
     a, b = score_dataset(mc, id_states), score_dataset(mc, id_states)
     assert a.equals(b)
     assert not np.allclose(score_dataset(mc, id_states, seed=1)["value_std"], a["value_std"])
@@ -132,7 +134,7 @@ def test_action_mode_is_applied_and_recorded(cheetah):
     assert not np.array_equal(runs[0].states, runs[1].states)
     cheetah.policy.set_inference("average")
 
-    baseline = make_agent("ppo", "baseline", ENV, seed=0, overrides=dict(TINY))
+    baseline = make_agent("ppo", "baseline", ENV, seed=0, overrides=dict(TINY), hyperparameters=RAW_HP)
     data = collect_id_states(baseline, ENV, 5, action_mode=ActionMode(False, "single"), seed=0, **SHORT)
     assert data.metadata["policy"] == "baseline"
     with pytest.raises(ValueError, match="has no members"):

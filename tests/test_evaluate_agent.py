@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from stable_baselines3 import A2C, PPO
 
-from paper_lib import make_agent
+from paper_lib import make_agent, paper_hyperparameters
 from paper_lib.envs import make_env
 from paper_lib.evaluate_agent import Budget, evaluate_agent, main
 
@@ -31,7 +31,8 @@ def test_a_plain_sb3_agent_gets_the_member_free_detectors(tmp_path):
 
 
 def test_cli_on_a_member_policy(tmp_path, capsys):
-    model = make_agent("a2c", "mc_dropout", "HalfCheetah-v5", seed=0, overrides={"n_steps": 8})
+    model = make_agent("a2c", "mc_dropout", "HalfCheetah-v5", seed=0, overrides={"n_steps": 8},
+                       hyperparameters={**paper_hyperparameters("HalfCheetah-v5"), "normalize_obs": False})
     model.learn(64)
     model.save(tmp_path / "members.zip")
     main([str(tmp_path / "members.zip"), "HalfCheetah-v5", "--configs", "2", "--steps", "10", "--id-episodes", "4",

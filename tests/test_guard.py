@@ -64,6 +64,7 @@ def tiny_repo(tmp_path_factory) -> Path:
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     params["run"] = {"profile": "tiny", **params["profiles"]["tiny"]}
     params.setdefault("guard", TEST_GUARD)
+    params["hyperparameters"][ENV]["normalize_obs"] = False  # the raw-observation path; normalized: the Walker2d test
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     cfg, _ = load_settings(root / "params.yaml")
     for env_id, method, seed in cfg.runs():

@@ -25,6 +25,7 @@ MC_METHODS = ["mc_dropconnect", "mc_dropout"]
 def agent(method: str, env_id: str = "HalfCheetah-v5", width: int | None = None):
     """A tiny agent; `width` narrows its MLPs for tests that score many thousand states."""
     hp = paper_hyperparameters(env_id)
+    hp["normalize_obs"] = False  # scoring of raw observations; normalized runs: test_score_run_on_a_vecnormalize_run
     if width is not None:
         hp["hidden_sizes"] = [width, width]
     return make_agent("ppo", method, env_id, seed=0, overrides=dict(TINY), hyperparameters=hp)
