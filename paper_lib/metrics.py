@@ -11,7 +11,9 @@ Confidence intervals: a run's states come in clusters (the states of one episode
 one OOD configuration, are far from independent), so `cluster_bootstrap_auroc` resamples
 whole clusters; resampling single states (`bootstrap_auroc_ci`) gives intervals that are
 too narrow for such data. `seed_cluster_ci` combines runs of several training seeds:
-resample seeds, then clusters within each.
+resample seeds, then clusters within each. The same two levels give the reward tables'
+intervals (`mean_replicates` of each seed's episodes) and the intervals of differences
+between methods or measures (`difference_ci`, paired where both sides share their resamples).
 """
 
 from __future__ import annotations
@@ -213,32 +215,110 @@ def cluster_bootstrap_auroc(
     return AurocInterval(float(low), float(high), reps)
 
 
-def seed_cluster_ci(replicates: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int = 1000,
-                    level: float = 0.95) -> tuple[float, float]:
-    """Interval of the mean AUROC over training seeds: resample seeds, then clusters within each.
+def seed_cluster_replicates(replicates: Sequence[np.ndarray], rng: np.random.Generator,
+                            n_boot: int = 1000) -> np.ndarray:
+    """Bootstrap replicates of a mean over training seeds: resample seeds, then clusters within each.
 
-    ``replicates[s]`` are seed s's cluster-bootstrap replicates (`cluster_bootstrap_auroc`).
-    Each outer replicate draws as many seeds as there are, with replacement, and for each
-    draw one of that seed's cluster replicates; their mean is the replicate. With one seed
-    this is that seed's own cluster interval.
+    ``replicates[s]`` are seed s's cluster-bootstrap replicates (`cluster_bootstrap_auroc`, or
+    `mean_replicates` of its episodes). Each outer replicate draws as many seeds as there are,
+    with replacement, and for each draw one of that seed's replicates; their mean is the
+    replicate. With one seed these are that seed's own replicates (nothing to resample above them).
     """
+    reps = _seed_replicates(replicates)
+    if len(reps) == 1:
+        return reps[0]
+    seeds = rng.integers(0, len(reps), size=(int(n_boot), len(reps)))
+    return _pick_per_seed(reps, seeds, rng)
+
+
+def _seed_replicates(replicates: Sequence[np.ndarray]) -> list[np.ndarray]:
     reps = [np.asarray(r, dtype=float) for r in replicates]
     if not reps or any(r.ndim != 1 or r.size == 0 for r in reps):
         raise ValueError("replicates must be a non-empty list of non-empty 1-D arrays, one per training seed.")
-    alpha = (1.0 - level) / 2.0
-    if len(reps) == 1:
-        low, high = np.nanquantile(reps[0], [alpha, 1.0 - alpha])
-        return float(low), float(high)
-    n_seeds = len(reps)
-    seeds = rng.integers(0, n_seeds, size=(int(n_boot), n_seeds))
-    picks = rng.random(size=(int(n_boot), n_seeds))
+    return reps
+
+
+def _pick_per_seed(reps: list[np.ndarray], seeds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Mean over each row of drawn `seeds` of one randomly picked replicate of that seed (NaN-padded sizes)."""
+    picks = rng.random(size=seeds.shape)
     sizes = np.array([r.size for r in reps])
-    stacked = np.full((n_seeds, sizes.max()), np.nan)
+    stacked = np.full((len(reps), sizes.max()), np.nan)
     for i, r in enumerate(reps):
         stacked[i, :r.size] = r
-    values = stacked[seeds, (picks * sizes[seeds]).astype(int)].mean(axis=1)
+    return stacked[seeds, (picks * sizes[seeds]).astype(int)].mean(axis=1)
+
+
+def _percentile_interval(values: np.ndarray, level: float) -> tuple[float, float]:
+    alpha = (1.0 - level) / 2.0
     low, high = np.nanquantile(values, [alpha, 1.0 - alpha])
     return float(low), float(high)
+
+
+def seed_cluster_ci(replicates: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int = 1000,
+                    level: float = 0.95) -> tuple[float, float]:
+    """Interval of the mean over training seeds: resample seeds, then clusters within each.
+
+    The percentile interval of `seed_cluster_replicates`; with one seed this is that seed's own
+    cluster interval.
+    """
+    return _percentile_interval(seed_cluster_replicates(replicates, rng, n_boot=n_boot), level)
+
+
+def mean_replicates(values: ArrayLike, rng: np.random.Generator, n_boot: int = 1000) -> np.ndarray:
+    """Bootstrap replicates of the mean of `values` (one seed's episodes), resampled with replacement.
+
+    ``values`` is (n,) or (m, n): m aligned rows (episode i of m methods played from the same
+    env seed) all resampled with the same draws, so replicate b of every row uses the same
+    episodes and differences of rows stay paired. Returns (n_boot,) or (m, n_boot).
+    """
+    arr = np.asarray(values, dtype=float)
+    rows = np.atleast_2d(arr)
+    if rows.ndim != 2 or rows.shape[1] == 0 or not np.all(np.isfinite(rows)):
+        raise ValueError(f"values must be (n,) or (m, n) finite numbers with n >= 1, got shape {arr.shape}.")
+    _check_bootstrap_args(rng, n_boot, 0.95)
+    n = rows.shape[1]
+    counts = rng.multinomial(n, np.full(n, 1.0 / n), size=int(n_boot))
+    reps = rows @ counts.T / n
+    return reps[0] if arr.ndim == 1 else reps
+
+
+#: How the replicates of two compared quantities relate (`seed_cluster_difference`).
+PAIRINGS = ("paired", "seeds", "unpaired")
+
+
+def seed_cluster_difference(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rng: np.random.Generator,
+                            pairing: str, n_boot: int = 1000) -> np.ndarray:
+    """Bootstrap replicates of mean(a) - mean(b), each a mean over training seeds of per-seed replicates.
+
+    - "paired": a[s] and b[s] come from the same seed and replicate i of both from the same
+      resample (same episodes, same clusters): seeds are drawn once and each seed's difference
+      replicates are used, so what both share cancels (identical data give exactly 0).
+    - "seeds": the same seeds (a[s] and b[s] of one run) but independent resamples within it:
+      seeds drawn once, a replicate picked for each side on its own.
+    - "unpaired": two independent samples (other runs, other seeds): each side is resampled on
+      its own and the replicates are matched at random, never by their order.
+    """
+    a, b = _seed_replicates(a), _seed_replicates(b)
+    if pairing not in PAIRINGS:
+        raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}.")
+    if pairing != "unpaired" and len(a) != len(b):
+        raise ValueError(f"a {pairing} difference needs the same seeds on both sides, got {len(a)} and {len(b)}.")
+    if pairing == "paired":
+        if any(x.size != y.size for x, y in zip(a, b)):
+            raise ValueError("paired replicates must have the same number per seed on both sides.")
+        return seed_cluster_replicates([x - y for x, y in zip(a, b)], rng, n_boot=n_boot)
+    if pairing == "seeds" and len(a) > 1:
+        seeds = rng.integers(0, len(a), size=(int(n_boot), len(a)))
+        return _pick_per_seed(a, seeds, rng) - _pick_per_seed(b, seeds, rng)
+    va, vb = seed_cluster_replicates(a, rng, n_boot=n_boot), seed_cluster_replicates(b, rng, n_boot=n_boot)
+    return va[rng.integers(0, va.size, size=int(n_boot))] - vb[rng.integers(0, vb.size, size=int(n_boot))]
+
+
+def difference_ci(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rng: np.random.Generator, pairing: str,
+                  n_boot: int = 1000, level: float = 0.95) -> tuple[float, float]:
+    """Percentile interval of mean(a) - mean(b) over training seeds (see `seed_cluster_difference`)."""
+    _check_bootstrap_args(rng, n_boot, level)
+    return _percentile_interval(seed_cluster_difference(a, b, rng, pairing, n_boot=n_boot), level)
 
 
 def measure_metrics(

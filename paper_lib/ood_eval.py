@@ -85,11 +85,14 @@ def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int 
         columns = [c for c in scored[0]["id"].columns if c not in _META]
         id_clusters = _clusters(parts["id"], "id")
         ood_clusters = _clusters(parts[ood_set], "id" if ood_set == "noise" else "ood")  # noise: its ID episode
+        # Every measure of an OOD set gets the same cluster resamples: replicate i of two measures comes from
+        # the same resampled states, so differences between measures of a run are paired.
+        resample_seed = int(rng.integers(2**63 - 1))
         for c in columns:
             id_s = np.stack([frames["id"][c].to_numpy() for frames in scored])
             ood_s = np.stack([frames[ood_set][c].to_numpy() for frames in scored])
-            row, reps = measure_metrics(id_s, ood_s, rng, n_boot=n_bootstrap, level=level, id_clusters=id_clusters,
-                                        ood_clusters=ood_clusters)
+            row, reps = measure_metrics(id_s, ood_s, np.random.default_rng(resample_seed), n_boot=n_bootstrap,
+                                        level=level, id_clusters=id_clusters, ood_clusters=ood_clusters)
             metric_rows.append({"ood_set": ood_set, "measure": c, **row})
             replicates.append(pd.DataFrame({"ood_set": ood_set, "measure": c, "replicate": np.arange(reps.size),
                                             "auroc": reps}))
