@@ -8,6 +8,7 @@ same scores whatever `batch_size` is.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,6 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import is_image_space
 
 from paper_lib import measures
-from paper_lib.methods.networks import to_members
 from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions, draw_state_seeds
 
 
@@ -40,7 +40,7 @@ def check_observations(policy: ActorCriticPolicy, observations: np.ndarray, *, s
     obs = np.asarray(observations)
     space = policy.observation_space
     shapes = [tuple(space.shape)]
-    if is_image_space(space) and len(space.shape) == 3:
+    if obs.shape[1:] != shapes[0] and obs.shape != shapes[0] and is_image_space(space) and len(space.shape) == 3:
         shapes.append((space.shape[1], space.shape[2], space.shape[0]))  # SB3 transposes channel-last images
     if single_ok and obs.shape in shapes:
         obs, vectorized = obs[None], False
@@ -65,6 +65,26 @@ def _state_seeds(policy: ActorCriticPolicy, n: int, seed: int | None) -> np.ndar
     return draw_state_seeds(n, generator)
 
 
+def _batches(policy: ActorCriticPolicy, obs: np.ndarray, batch_size: int, seed: int | None, actor: bool = True,
+             critic: bool = True) -> Iterator[tuple[th.Tensor | None, th.Tensor | None]]:
+    """(k, n, A) action params and (k, n) values of successive batches of `obs`, without autograd.
+
+    A baseline policy is a single member (k = 1). The per-state seeds of MC methods are drawn
+    for all states up front, so the batching cannot change them. A member policy skips the
+    output not asked for (None); its MC masks do not depend on that.
+    """
+    seeds = _state_seeds(policy, len(obs), seed)
+    policy.set_training_mode(False)
+    with th.no_grad():
+        for start in range(0, obs.shape[0], batch_size):
+            tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
+            if isinstance(policy, MemberActorCriticPolicy):
+                yield policy.member_outputs_from_tensor(tensor, None if seeds is None else seeds[start:start + batch_size],
+                                                        actor=actor, critic=critic)
+            else:
+                yield _single_member(policy, tensor)
+
+
 def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
                    seed: int | None = None) -> MemberOutputs:
     """All members on all states, in batches of `batch_size` states, one forward pass each.
@@ -76,19 +96,9 @@ def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_si
     discrete = isinstance(policy.action_space, spaces.Discrete)
     obs, _ = check_observations(policy, observations)
     values, params = [], []
-    members = isinstance(policy, MemberActorCriticPolicy)
-    seeds = _state_seeds(policy, len(obs), seed)
-    policy.set_training_mode(False)
-    with th.no_grad():
-        for start in range(0, obs.shape[0], batch_size):
-            tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
-            if members:
-                chunk_seeds = None if seeds is None else seeds[start:start + batch_size]
-                pi, vf = policy.member_outputs_from_tensor(tensor, chunk_seeds)
-            else:
-                pi, vf = _single_member(policy, tensor)
-            values.append(vf.cpu().numpy())
-            params.append(pi.cpu().numpy())
+    for pi, vf in _batches(policy, obs, batch_size, seed):
+        values.append(vf.cpu().numpy())
+        params.append(pi.cpu().numpy())
     return MemberOutputs(np.concatenate(values, axis=1), np.concatenate(params, axis=1), discrete)
 
 
@@ -108,11 +118,13 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
     value_std, policy_std and policy_js need members; max_prob and entropy exist for discrete
     actions only. A baseline policy (no members) gives max_prob and entropy; asking it for a
     member measure is an error. A baseline with continuous actions has no measure: {}.
-    `seed` fixes the MC methods' samples (see `member_outputs`).
+    `seed` fixes the MC methods' samples (see `member_outputs`). The measures are computed in
+    torch on each batch's member outputs (`measures.torch_measures`); only they become numpy.
     """
-    out = member_outputs(policy, observations, batch_size, seed=seed)
-    k = out.values.shape[0]
-    available = (measures.MEMBER_MEASURES if k > 1 else ()) + (measures.DISCRETE_ONLY if out.discrete else ())
+    obs, _ = check_observations(policy, observations)
+    discrete = isinstance(policy.action_space, spaces.Discrete)
+    k = policy.n_members if isinstance(policy, MemberActorCriticPolicy) else 1
+    available = (measures.MEMBER_MEASURES if k > 1 else ()) + (measures.DISCRETE_ONLY if discrete else ())
     wanted = available if measures_wanted is None else tuple(measures_wanted)
     for name in wanted:
         if name not in available:
@@ -122,9 +134,12 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
             raise ValueError(f"measure {name!r} is not available here; available: {available}")
     if not wanted:
         return {}  # a baseline with continuous actions: no measure applies (member-free detectors still do)
-    computed = measures.all_measures(out.values, out.action_params, out.discrete) if k > 1 else {
-        "max_prob": measures.max_prob(out.action_params), "entropy": measures.entropy(out.action_params)}
-    return {name: computed[name] for name in wanted}
+    parts: dict[str, list[th.Tensor]] = {name: [] for name in wanted}
+    value_only = set(wanted) == {"value_std"}
+    for pi, vf in _batches(policy, obs, batch_size, seed, actor=not value_only, critic="value_std" in wanted):
+        for name, value in measures.torch_measures(vf, pi, discrete, wanted).items():
+            parts[name].append(value)
+    return {name: th.cat(values).cpu().numpy() for name, values in parts.items()}
 
 
 def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
@@ -148,15 +163,9 @@ def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_s
 
 
 def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
-    features = policy.extract_features(obs)
     if isinstance(policy, MemberActorCriticPolicy):
-        net = policy.mlp_extractor
-        with policy.per_state_masks(obs.shape[0], state_seeds):
-            if hasattr(net, "policy_tower"):
-                x = net.policy_tower[:-1](to_members(features, net.k, "all"))
-            else:
-                x = net.trunk(to_members(features, net.k, "all"))
-        return x.mean(0)
+        return policy.last_hidden_from_tensor(obs, state_seeds).mean(0)
+    features = policy.extract_features(obs)
     if not policy.share_features_extractor:
         features = features[0]
     return policy.mlp_extractor.forward_actor(features)
@@ -167,21 +176,30 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
     """Actions (combined as `predict` would) and every measure, from one batched pass over the members.
 
     The deployment call: an agent that acts and says how unsure it is, at the cost of one
-    forward pass instead of `predict` plus `uncertainty` (two passes).
+    forward pass instead of `predict` plus `uncertainty` (two passes); the measures are
+    computed in torch on that pass's outputs.
     """
     if not isinstance(policy, MemberActorCriticPolicy):
         raise ValueError("act_with_uncertainty needs a member policy; a baseline has no member-based uncertainty")
     observation, vectorized = check_observations(policy, observation, single_ok=True, what="observation")
     if policy.training:
         policy.set_training_mode(False)
-    tensor, _ = policy.obs_to_tensor(observation)
+    tensor = _checked_to_tensor(policy, observation)
+    discrete = isinstance(policy.action_space, spaces.Discrete)
     with th.no_grad():
         pi, vf = policy.member_outputs_from_tensor(tensor)
         actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
                                   **policy.inference_options).cpu().numpy()
+        scores = {name: value.cpu().numpy() for name, value in measures.torch_measures(vf, pi, discrete).items()}
     actions = actions.reshape((-1, *policy.action_space.shape))
-    if isinstance(policy.action_space, spaces.Box):
-        actions = np.clip(actions, policy.action_space.low, policy.action_space.high)
-    discrete = isinstance(policy.action_space, spaces.Discrete)
-    scores = measures.all_measures(vf.cpu().numpy(), pi.cpu().numpy(), discrete)
+    if isinstance(policy.action_space, spaces.Box):  # np.clip, as SB3's predict; this form is faster on small arrays
+        actions = np.minimum(np.maximum(actions, policy.action_space.low), policy.action_space.high)
     return (actions if vectorized else actions[0]), scores
+
+
+def _checked_to_tensor(policy: ActorCriticPolicy, observation: np.ndarray) -> th.Tensor:
+    """SB3's `obs_to_tensor` of a batch `check_observations` accepted; flat observations without
+    its checks and copy, which cost more than a one-state forward pass's layers."""
+    if observation.shape[1:] == policy.observation_space.shape and not is_image_space(policy.observation_space):
+        return th.as_tensor(observation, device=policy.device)
+    return policy.obs_to_tensor(observation)[0]

@@ -202,14 +202,15 @@ class IndependentEnsemblePolicy(MemberActorCriticPolicy):
         return obs
 
     # --- the member-output interface ---------------------------------------------------------
-    def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None
-                                   ) -> tuple[th.Tensor, th.Tensor]:
-        """All k members on every raw state: (k, N, A) action params and (k, N) values.
+    def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, *,
+                                   actor: bool = True, critic: bool = True
+                                   ) -> tuple[th.Tensor | None, th.Tensor | None]:
+        """All k members on every raw state: (k, N, A) action params and (k, N) values (None where not asked).
 
         `state_seeds` is accepted for the member-policy interface; trained baselines sample nothing.
         """
-        pi, vf = self.mlp_extractor.members(obs, "all")
-        return pi, vf.squeeze(-1)
+        pi, vf = self.mlp_extractor.members(obs, "all", actor=actor, critic=critic)
+        return pi, (None if vf is None else vf.squeeze(-1))
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
         mode, member = self.inference

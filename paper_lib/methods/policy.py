@@ -10,8 +10,10 @@ This class only adds what SB3 cannot know about:
 - `member_outputs` returns all k members' raw outputs for uncertainty and analysis.
 
 The inference paths (`_predict`, `member_outputs_from_tensor`) draw MC masks per (member,
-state); the training paths (`forward`, `evaluate_actions`, the tagged `predict_values`) keep
-one mask per member per pass and are untouched, so training numerics do not depend on them.
+state) and run through the lean `paper_lib.methods.inference` (same numbers as the member
+network's modules, less work); the training paths (`forward`, `evaluate_actions`, the tagged
+`predict_values`) keep one mask per member per pass and run the modules themselves, so
+training numerics do not depend on the inference code.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.preprocessing import is_image_space
 from torch import nn
 
+from paper_lib.methods import inference as lean
 from paper_lib.methods.groups import MEMBER_TAG
 from paper_lib.methods.layers import has_stochastic_layers, per_state_masks
 from paper_lib.methods.networks import MemberActorCritic, MemberMLP, MemberNatureCNN, MemberSpec
@@ -174,22 +177,36 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
                 "vote_sampling": VOTE_SAMPLING[int(self._inference_vote_sampling)]}
 
     # --- member outputs ------------------------------------------------------------------
-    def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None
-                                   ) -> tuple[th.Tensor, th.Tensor]:
+    def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, *,
+                                   actor: bool = True, critic: bool = True
+                                   ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """All k members on every state, one batched pass: (k, N, A) action params and (k, N) values.
 
         MC methods draw their masks per (member, state), from `state_seeds` (one per state) or,
-        when None, from seeds drawn from torch's RNG.
+        when None, from seeds drawn from torch's RNG. `actor` / `critic` False skip that output
+        (None). Without autograd this runs the lean inference path, else the modules themselves.
         """
-        features = self.extract_features(obs)
-        with self.per_state_masks(obs.shape[0], state_seeds):
-            pi, vf = self.mlp_extractor.members(features, "all")
-        return pi, vf.squeeze(-1)
+        seeds = self.state_seeds(obs.shape[0], state_seeds)
+        pi, vf = lean.members(self, obs, seeds, actor=actor, critic=critic)
+        return pi, (None if vf is None else vf.squeeze(-1))
+
+    def last_hidden_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
+        """(k, N, H): every member's last hidden layer (the action head's input), masks drawn as above."""
+        return lean.last_hidden_members(self, obs, self.state_seeds(obs.shape[0], state_seeds))
 
     @property
     def samples_members(self) -> bool:
         """Whether the members are MC samples (MC Dropout / DropConnect), so outputs depend on a seed."""
-        return has_stochastic_layers(self.mlp_extractor)
+        cached = self.__dict__.get("_samples_members")  # the network's layers never change after building
+        if cached is None:
+            cached = self.__dict__["_samples_members"] = has_stochastic_layers(self.mlp_extractor)
+        return cached
+
+    def state_seeds(self, n_states: int, state_seeds: np.ndarray | None = None) -> np.ndarray | None:
+        """The per-state seeds MC layers sample from (drawn from torch's RNG when None); None without MC layers."""
+        if not self.samples_members:
+            return None
+        return draw_state_seeds(n_states) if state_seeds is None else state_seeds
 
     def per_state_masks(self, n_states: int, state_seeds: np.ndarray | None = None):
         """Context in which the member network samples per (member, state); nothing to do without MC layers."""
@@ -198,10 +215,14 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         return per_state_masks(self.mlp_extractor, draw_state_seeds(n_states) if state_seeds is None else state_seeds)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        features = self.extract_features(observation)
-        with self.per_state_masks(observation.shape[0]):
-            pi, _ = self.mlp_extractor.members(features, "all", critic=False)
+        pi, _ = self.member_outputs_from_tensor(observation, critic=False)
         return combine_actions(pi, self, *self.inference, deterministic=deterministic, **self.inference_options)
+
+    def set_training_mode(self, mode: bool) -> None:
+        """SB3's, skipped when nothing changes: `predict` calls it every time, and walking every
+        module costs as much as a one-state forward pass. The flag changes no number here."""
+        if mode != self.training or mode != self.mlp_extractor.training:
+            super().set_training_mode(mode)
 
     # --- truncated-episode bootstrap ----------------------------------------------------
     def obs_to_tensor(self, observation):
@@ -233,9 +254,10 @@ def combine_actions(pi: th.Tensor, policy: ActorCriticPolicy, mode: str, member:
     dist = policy.action_dist
     if mode == "single":
         m = int(th.randint(pi.shape[0], ())) if member is None else member
-        return _distribution(dist, pi[m], policy).get_actions(deterministic=deterministic)
+        return _mode(dist, pi[m]) if deterministic else _distribution(dist, pi[m], policy).get_actions()
     if isinstance(dist, DiagGaussianDistribution):  # continuous: vote and average both average the means
-        return _distribution(dist, pi.mean(0), policy).get_actions(deterministic=deterministic)
+        mean = pi.mean(0)
+        return mean if deterministic else _distribution(dist, mean, policy).get_actions()
     assert isinstance(dist, CategoricalDistribution)
     probs = th.softmax(pi, -1).mean(0)
     if mode == "average" or (not deterministic and vote_sampling == "average"):
@@ -252,6 +274,14 @@ def _default_inference_options(module: nn.Module, state_dict: dict, prefix: str,
     """Load-time hook: a checkpoint from before the tie and vote-sampling options gets their defaults."""
     for name in ("_inference_ties", "_inference_vote_sampling"):
         state_dict.setdefault(prefix + name, th.tensor(0))
+
+
+def _mode(dist, params: th.Tensor) -> th.Tensor:
+    """SB3's deterministic action without building a distribution: the Gaussian's mean, or the
+    argmax of torch Categorical's probabilities (softmax of the normalized logits, as SB3 takes it)."""
+    if isinstance(dist, DiagGaussianDistribution):
+        return params
+    return th.softmax(params - params.logsumexp(-1, keepdim=True), -1).argmax(-1)
 
 
 def _distribution(dist, params: th.Tensor, policy: ActorCriticPolicy):
