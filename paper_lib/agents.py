@@ -44,7 +44,14 @@ ALGO_SETTINGS = ("batch_size", "learning_rate", "n_epochs", "n_steps", "gae_lamb
                  "max_grad_norm", "clip_range")
 #: Top-level keys of a hyperparameter entry; the first four are required.
 HP_REQUIRED = ("n_envs", "normalize_obs", "total_timesteps", "algo")
-HP_OPTIONAL = ("policy", "members", "hidden_sizes", "hidden_sizes_masksembles", "linear_lr_decay")
+HP_OPTIONAL = ("policy", "members", "hidden_sizes", "hidden_sizes_masksembles", "linear_lr_decay", "normalize_reward")
+#: Run-config keys added after runs were committed, with the value older config.json files mean.
+CONFIG_DEFAULTS: dict[str, Any] = {"normalize_reward": False}
+
+
+def config_value(config: dict[str, Any], key: str) -> Any:
+    """A run config's setting, reading a key that older runs did not record as its default."""
+    return config.get(key, CONFIG_DEFAULTS.get(key))
 
 
 def check_integer(value: Any, name: str, where: str, minimum: int | None = None) -> int:
@@ -147,7 +154,7 @@ def validate_hyperparameters(hp: Any, env_id: str, where: str | None = None) -> 
         raise ValueError(f"{where}: lacks {missing}; see paper_lib/data/paper_hyperparameters.yaml for a full entry")
     check_integer(hp["n_envs"], "n_envs", where, minimum=1)
     check_integer(hp["total_timesteps"], "total_timesteps", where, minimum=1)
-    for key in ("normalize_obs", "linear_lr_decay"):
+    for key in ("normalize_obs", "normalize_reward", "linear_lr_decay"):
         if key in hp and not isinstance(hp[key], bool):
             raise ValueError(f"{where}: {key} must be true or false, got {hp[key]!r}")
     for key in ("hidden_sizes", "hidden_sizes_masksembles"):
@@ -291,12 +298,14 @@ def make_agent(
     config = dict(algo=algo, method=method, env_id=env_id, seed=seed, n_envs=n_envs, n_members=n_members,
                   assignment=assignment, inference=inference, dropout_p=dropout_p,
                   masksembles_scale=masksembles_scale, hidden_sizes=hidden, normalize_obs=hp["normalize_obs"],
+                  normalize_reward=bool(hp.get("normalize_reward", False)),
                   policy=dict(hp.get("policy") or {}) if mlp_settings else {},
                   algo_kwargs=dict(algo_kwargs), linear_lr_decay=bool(hp.get("linear_lr_decay", False)),
                   total_timesteps=hp.get("total_timesteps"))
 
     if env is None:
-        env = make_env(env_id, n_envs, seed, normalize_obs=hp["normalize_obs"])
+        env = make_env(env_id, n_envs, seed, normalize_obs=hp["normalize_obs"],
+                       normalize_reward=config["normalize_reward"], gamma=algo_kwargs["gamma"])
     elif env.num_envs != n_envs:
         raise ValueError(f"the given env has {env.num_envs} envs but n_envs={n_envs}")
     if config["linear_lr_decay"]:

@@ -128,10 +128,11 @@ def _check_spaces(zip_path: Path, data: dict[str, Any], env_id: Any, retrain: st
 
 def _check_normalizer(norm: Path, config: dict[str, Any], data: dict[str, Any], retrain: str) -> Path | None:
     """vecnormalize.pkl exactly when the run normalized, and then a VecNormalize of the model's observations."""
-    normalized = bool(config.get("normalize_obs"))
+    normalized = bool(config.get("normalize_obs")) or bool(config.get("normalize_reward"))
     if not normalized:
         if norm.exists():
-            raise ValueError(f"{norm} is present but {norm.parent / 'config.json'} says normalize_obs: false, so "
+            raise ValueError(f"{norm} is present but {norm.parent / 'config.json'} says normalize_obs: false "
+                             "(and no normalize_reward), so "
                              "it does not belong to this run and would be applied by mistake; delete it, or "
                              f"{retrain}")
         return None

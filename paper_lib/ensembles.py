@@ -59,6 +59,7 @@ import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
+from paper_lib.agents import config_value
 from paper_lib.checkpoints import Checkpoint, load_checkpoint
 from paper_lib.config import PARAMS_FILE, RunConfig, parse_params, validate_params
 from paper_lib.envs import is_atari
@@ -72,7 +73,8 @@ SECTION = "ensembles"
 ASSIGNMENTS = ("shared", "own")
 #: Training settings that must agree between a `shared` run and its `own` twin (all but the assignment).
 TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dropout_p", "masksembles_scale",
-                 "hidden_sizes", "normalize_obs", "policy", "algo_kwargs", "linear_lr_decay", "total_timesteps")
+                 "hidden_sizes", "normalize_obs", "normalize_reward", "policy", "algo_kwargs", "linear_lr_decay",
+                 "total_timesteps")
 #: What a run needs before it enters the tables, in pipeline order.
 ARTIFACTS = ("checkpoint", "dataset", "evaluation", "scores")
 
@@ -359,7 +361,7 @@ def pair_problem(shared: dict[str, Any] | None, own: dict[str, Any] | None) -> s
         return " and ".join(name for name, c in (("shared", shared), ("own", own)) if c is None) + " not trained"
     if shared.get("assignment", "shared") != "shared" or own.get("assignment") != "own":
         return f"assignments are {shared.get('assignment')!r} / {own.get('assignment')!r}"
-    differ = [k for k in TRAINING_KEYS if shared.get(k) != own.get(k)]
+    differ = [k for k in TRAINING_KEYS if config_value(shared, k) != config_value(own, k)]
     if differ:
         return "trained with different settings: " + "; ".join(f"{k}: shared {shared.get(k)!r}, own {own.get(k)!r}"
                                                                for k in differ)

@@ -105,8 +105,14 @@ def make_single_env(env_id: str, **gym_kwargs: Any) -> gym.Env:
 
 
 def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
-             env_kwargs: dict[str, Any] | None = None) -> VecEnv:
-    """The vectorized env an agent trains in: Atari gets AtariWrapper + 4 stacked frames."""
+             env_kwargs: dict[str, Any] | None = None, normalize_reward: bool = False,
+             gamma: float = 0.99) -> VecEnv:
+    """The vectorized env an agent trains in: Atari gets AtariWrapper + 4 stacked frames.
+
+    ``normalize_reward`` scales training rewards by the running std of the discounted return
+    (VecNormalize, with the algorithm's ``gamma`` as rl-baselines3-zoo passes it); evaluation
+    always undoes it (`Checkpoint.env`), so reported rewards are the env's own.
+    """
     if is_atari(env_id):
         register_atari()
         venv: VecEnv = VecFrameStack(make_atari_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
@@ -114,6 +120,8 @@ def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
     else:
         venv = make_vec_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
                             env_kwargs={**default_env_kwargs(env_id), **(env_kwargs or {})})
-    if normalize_obs:
+    if normalize_reward:
+        venv = VecNormalize(venv, norm_obs=normalize_obs, norm_reward=True, gamma=gamma)
+    elif normalize_obs:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv

@@ -34,6 +34,7 @@ def probe_row(name: str, folder: Path, episodes: int, seed: int) -> dict:
            "steps": int(curve["timesteps"].iloc[-1]),
            "dropout_p": config.get("dropout_p"), "masksembles_scale": config.get("masksembles_scale"),
            "policy": str(config.get("policy") or "SB3 defaults"), "normalize_obs": config.get("normalize_obs"),
+           "normalize_reward": bool(config.get("normalize_reward", False)),
            "wall_minutes": round(config.get("wall_seconds", float("nan")) / 60, 1)}
     for mark in MARKS:
         if curve["timesteps"].iloc[-1] >= mark:
@@ -102,7 +103,7 @@ def summarize(root: Path, extra: dict[str, Path], episodes: int = 5, seed: int =
     df = pd.DataFrame([probe_row(name, folder, episodes, seed) for name, folder in runs])
     marks = [c for c in df.columns if c.startswith("train@")]
     return df[["probe", "seed", "method", "steps", *marks, "eval_deterministic", "eval_sampled", "dropout_p",
-               "masksembles_scale", "policy", "normalize_obs", "wall_minutes"]]
+               "masksembles_scale", "policy", "normalize_obs", "normalize_reward", "wall_minutes"]]
 
 
 def by_variant(df: pd.DataFrame) -> pd.DataFrame:

@@ -34,7 +34,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from paper_lib.agents import make_agent
+from paper_lib.agents import HP_OPTIONAL, config_value, make_agent
 from paper_lib.io import atomic_dir, write_json_atomic
 from paper_lib.provenance import machine, package_versions
 
@@ -121,10 +121,11 @@ def load_resume_point(model: BaseAlgorithm, folder: Path) -> dict[str, Any]:
         saved_config = state.get("config")
         if saved_config is not None:
             for key in ("algo", "method", "env_id", "seed", "n_members", "dropout_p", "masksembles_scale", "assignment",
-                        "hidden_sizes", "policy", "normalize_obs", "algo_kwargs", "n_envs"):
-                if saved_config.get(key) != model.paper_lib_config.get(key):
-                    raise ValueError(f"resume point {folder} was trained with {key}={saved_config.get(key)!r}, "
-                                     f"this run has {model.paper_lib_config.get(key)!r}; delete {folder} to start "
+                        "hidden_sizes", "policy", "normalize_obs", "normalize_reward", "algo_kwargs", "n_envs"):
+                saved, now = (config_value(c, key) for c in (saved_config, model.paper_lib_config))
+                if saved != now:
+                    raise ValueError(f"resume point {folder} was trained with {key}={saved!r}, "
+                                     f"this run has {now!r}; delete {folder} to start "
                                      "afresh or run with the settings it was made with")
         model.set_parameters(str(folder / "model.zip"), exact_match=True, device=model.device)
     except (OSError, pickle.UnpicklingError, EOFError, KeyError) as err:
@@ -222,7 +223,7 @@ def apply_hp_edits(hp: dict[str, Any], edits: list[str]) -> dict[str, Any]:
                 raise ValueError(f"--hp {edit!r}: {name!r} is not a section of the hyperparameters; "
                                  f"sections: {sorted(k for k, v in node.items() if isinstance(v, dict))}")
             node = node[name]
-        if leaf not in node:
+        if leaf not in node and not (not parents and leaf in HP_OPTIONAL):  # e.g. normalize_reward=true
             raise ValueError(f"--hp {edit!r}: unknown setting {leaf!r}; known here: {sorted(node)}")
         node[leaf] = yaml.safe_load(text)
     return hp

@@ -88,6 +88,29 @@ def test_committed_checkpoint_holds_inference_weights_and_loads_with_plain_ppo(t
     assert np.array_equal(ours.action_params, theirs.action_params) and np.array_equal(ours.values, theirs.values)
 
 
+def test_reward_normalization_scales_training_rewards_only(tmp_path):
+    """`normalize_reward` (the zoo's `normalize: true`) trains on scaled rewards; evaluation sees the env's own."""
+    from paper_lib.agents import paper_hyperparameters
+    from paper_lib.checkpoints import load_checkpoint
+
+    hp = apply_hp_edits(paper_hyperparameters("Walker2d-v5"), ["normalize_reward=true"])
+    model = make_agent("ppo", "baseline", "Walker2d-v5", 0, hyperparameters=hp, n_envs=2, **TINY)
+    venv = model.get_vec_normalize_env()
+    assert venv.norm_reward and venv.norm_obs and venv.gamma == hp["algo"]["gamma"]
+    out = train_run("Walker2d-v5", "baseline", 0, tmp_path / "ckpt", total_timesteps=64,
+                    agent_kwargs={**TINY, "hyperparameters": hp, "n_envs": 2})
+    ckpt = load_checkpoint(out, "Walker2d-v5", "baseline", 0)
+    assert ckpt.config["normalize_reward"] is True
+    saved = ckpt.env(1, 0)
+    assert saved.ret_rms.count > 1, "the return statistics were learned in training and saved"
+    saved.reset()
+    _, reward, _, _ = saved.step(np.zeros((1, *saved.action_space.shape), dtype=np.float32))
+    raw = saved.get_original_reward()
+    assert not saved.norm_reward and reward[0] == raw[0], "evaluation reports the env's own reward"
+    plain = make_agent("ppo", "baseline", "Walker2d-v5", 0, n_envs=2, **TINY).get_vec_normalize_env()
+    assert not plain.norm_reward, "without the setting, observations only (the committed runs' recipe)"
+
+
 def test_atomic_dir_keeps_the_old_folder_when_writing_fails(tmp_path):
     target = tmp_path / "ckpt"
     with atomic_dir(target) as tmp:
