@@ -252,6 +252,19 @@ def load_run_config(path: str | Path = PARAMS_FILE) -> RunConfig:
     return validate_params(read_params(path), path)
 
 
+def _with_run_section(text: str, run: dict[str, Any]) -> str:
+    """`text` with its top-level `run:` block replaced by `run`; every other line (comments too) kept as it is."""
+    lines = text.splitlines(keepends=True)
+    starts = [i for i, line in enumerate(lines) if line.startswith("run:")]
+    block = yaml.dump({"run": run}, Dumper=_PlainDumper, sort_keys=False, default_flow_style=None, width=110)
+    if not starts:
+        return HEADER + block + text
+    start = starts[0]
+    end = next((i for i in range(start + 1, len(lines))
+                if lines[i].strip() and not lines[i][0].isspace()), len(lines))
+    return "".join(lines[:start]) + block + "".join(lines[end:])
+
+
 def use_profile(name: str, path: str | Path = PARAMS_FILE) -> None:
     """Make profile `name` the active one (rewrites the `run` section)."""
     path = Path(path)
@@ -260,10 +273,8 @@ def use_profile(name: str, path: str | Path = PARAMS_FILE) -> None:
         raise ValueError(f"{path}: unknown profile {name!r}; known: {sorted(params['profiles'])}")
     if not isinstance(params["profiles"][name], dict):
         raise ValueError(f"{path}: profiles.{name} must be a mapping of settings; {path} was left unchanged")
-    params["run"] = {"profile": name, **copy.deepcopy(params["profiles"][name])}
-    ordered = {"run": params["run"], "profiles": params["profiles"], "hyperparameters": params["hyperparameters"],
-               **{key: params[key] for key in OPTIONAL_SECTIONS if key in params}}
-    text = HEADER + yaml.dump(ordered, Dumper=_PlainDumper, sort_keys=False, default_flow_style=None, width=110)
+    run = {"profile": name, **copy.deepcopy(params["profiles"][name])}
+    text = _with_run_section(path.read_text(), run)
     try:  # the file as it would be written, checked before anything is written
         validate_params(parse_params(text, path), path)
     except ValueError as err:

@@ -59,6 +59,10 @@ STALE_MEANING = {"train": "trained before their settings in params.yaml, the tra
                  "evaluate": "evaluated before the evaluation code or settings last changed (`make recollect`)"}
 
 
+#: The artifact each per-run stage makes.
+STAGE_OUTPUT = {"train": "checkpoint", "collect": "dataset", "evaluate": "evaluation"}
+
+
 def stale_stages(dvc: str = "dvc", env: dict[str, str] | None = None) -> set[str] | None:
     """Names of the stages `dvc status` finds changed (e.g. 'train@HalfCheetah-v5-masksembles-0'); None if it fails."""
     import json
@@ -77,8 +81,9 @@ def status_table(cfg: RunConfig, stale: set[str] | None = None) -> pd.DataFrame:
     for e, m, s in cfg.runs():
         row = {"env": e, "method": m, "seed": s, **{a: "yes" if has(cfg, (e, m, s), a) else "no" for a in ARTIFACTS}}
         if stale is not None:
-            row["stale (dvc status)"] = ", ".join(st for st in STALE_MEANING
-                                                  if f"{st}@{stage_suffix(e, m, s)}" in stale) or "-"
+            row["stale (dvc status)"] = ", ".join(  # a stage that never ran (its output is missing) is not stale
+                st for st in STALE_MEANING
+                if f"{st}@{stage_suffix(e, m, s)}" in stale and row[STAGE_OUTPUT[st]] == "yes") or "-"
         rows.append(row)
     return pd.DataFrame(rows, columns=["env", "method", "seed", *ARTIFACTS] + (["stale (dvc status)"] if stale is not None else []))
 
@@ -112,7 +117,9 @@ def stale_lines(table: pd.DataFrame) -> list[str]:
     for stage, meaning in STALE_MEANING.items():
         n = int(sum(stage in kinds.split(", ") for kinds in table["stale (dvc status)"]))
         if n:
-            lines.append(f"{n} of {len(table)} runs were {meaning}; the tables use them as they are.")
+            made = int((table[STAGE_OUTPUT[stage]] == "yes").sum())
+            lines.append(f"{n} of the {made} runs with a {STAGE_OUTPUT[stage]} were {meaning}; "
+                         "the tables use them as they are.")
     return lines
 
 

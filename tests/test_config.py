@@ -37,6 +37,19 @@ def test_committed_profile_is_valid_and_profiles_switch(params):
     assert "the paper's (except Ant-v5 1,000,000)" in paper.budget_caption()
 
 
+def test_a_profile_switch_rewrites_the_run_section_only(params):
+    """Comments and the other sections stay byte for byte: the switch must not destroy what people wrote."""
+    before = params.read_text()
+    use_profile("tiny", params)
+    use_profile(load_run_config(REPO / "params.yaml").profile, params)
+    assert params.read_text() == before
+    use_profile("tiny", params)
+    after = params.read_text()
+    comments = [line for line in before.splitlines() if line.lstrip().startswith("#")]
+    assert comments and all(line in after.splitlines() for line in comments)
+    assert after.split("\nprofiles:", 1)[1] == before.split("\nprofiles:", 1)[1]
+
+
 def test_params_hyperparameters_match_the_packaged_paper_table():
     hps = yaml.safe_load((REPO / "params.yaml").read_text())["hyperparameters"]
     for env_id, hp in hps.items():
