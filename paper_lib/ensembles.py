@@ -46,7 +46,6 @@ import dataclasses
 import itertools
 import json
 import pickle
-import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +67,7 @@ from paper_lib.methods.independent import assemble_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import StateDataset, concat
+from paper_lib.train import hp_flags, train_command
 
 SECTION = "ensembles"
 ASSIGNMENTS = ("shared", "own")
@@ -287,22 +287,12 @@ def train_own(cfg: EnsemblesConfig, env_id: str, method: str, seed: int, **train
                      agent_kwargs=kwargs, **train_kwargs)
 
 
-def _hp_flags(overrides: dict[str, Any]) -> list[str]:
-    """Overrides as train.py's `--hp algo.KEY=VALUE` edits (values in YAML/JSON form)."""
-    return [f"--hp {shlex.quote(f'algo.{key}={json.dumps(value)}')}" for key, value in overrides.items()]
-
-
-def _train_line(args: list[str], resume_root: str | None, python: str) -> str:
-    prefix = [f"env PAPER_LIB_RESUME_ROOT={shlex.quote(resume_root)}"] if resume_root else []
-    return " ".join(prefix + [python, "-m", "paper_lib.train"] + args)
-
-
 def member_command(cfg: EnsemblesConfig, env_id: str, seed: int, resume_root: str | None = None,
                    python: str = ".venv/bin/python") -> str:
     """The `python -m paper_lib.train` line that trains one member exactly as `train_member` does."""
     steps, _ = cfg.member_budget(env_id)
-    return _train_line([env_id, "baseline", str(seed), str(cfg.member_dir(env_id, seed)), f"--timesteps {steps}",
-                        *_hp_flags(cfg.member_overrides(env_id))], resume_root, python)
+    return train_command([env_id, "baseline", str(seed), str(cfg.member_dir(env_id, seed)), f"--timesteps {steps}",
+                        *hp_flags(cfg.member_overrides(env_id))], resume_root, python)
 
 
 def run_command(cfg: EnsemblesConfig, assignment: str, env_id: str, method: str, seed: int,
@@ -313,7 +303,7 @@ def run_command(cfg: EnsemblesConfig, assignment: str, env_id: str, method: str,
         args.append(f"--timesteps {cfg.run.budget(env_id)}")
     if assignment == "own":
         args.append("--assignment own")
-    return _train_line(args + _hp_flags(cfg.run.overrides or {}), resume_root, python)
+    return train_command(args + hp_flags(cfg.run.overrides or {}), resume_root, python)
 
 
 # --------------------------------------------------------------------------------- what exists

@@ -1,6 +1,9 @@
 """Which runs of the active profile exist, and what each has: checkpoint, dataset, evaluation, scores.
 
     python -m paper_lib.pipeline_status      # prints the runs that are missing something, writes results/<profile>/runs.md
+    python -m paper_lib.pipeline_status queue [--resume-root DIR] [--envs ...] [--methods ...]
+                                             # the training line of every run without a checkpoint, seed-major,
+                                             # for scripts/train_queue.sh (then scripts/land_run.sh lands each)
 
 The tables and figures are built from the runs that exist (a profile may be partly trained:
 3 of 8 envs, some seeds missing); this module is the one place that says which those are, so
@@ -136,12 +139,44 @@ def write_status(cfg: RunConfig, stale: set[str] | None = None) -> Path:
     return write_text_atomic(cfg.results / "runs.md", "\n".join(text))
 
 
+def queue_lines(cfg: RunConfig, resume_root: str | None = None, envs: list[str] | None = None,
+                methods: list[str] | None = None, python: str = ".venv/bin/python") -> list[str]:
+    """The `python -m paper_lib.train` line of every run lacking a checkpoint, all seed-0 runs first.
+
+    The same command the `train` stage's notebook runs (the profile's budget and overrides), so a queue
+    of these lines trains what `make retrain` would, resumably, without DVC in the loop.
+    """
+    from paper_lib.train import hp_flags, train_command
+
+    for name, chosen, known in (("env", envs, cfg.envs), ("method", methods, cfg.methods)):
+        unknown = sorted(set(chosen or []) - set(known))
+        if unknown:
+            raise ValueError(f"{name}(s) {unknown} are not in profile {cfg.profile!r}; it has {known}")
+    runs = [run for run in cfg.runs() if (envs is None or run[0] in envs) and (methods is None or run[1] in methods)
+            and not has(cfg, run, "checkpoint")]
+    lines = []
+    for env_id, method, seed in sorted(runs, key=lambda run: (run[2], cfg.envs.index(run[0]), cfg.methods.index(run[1]))):
+        args = [env_id, method, str(seed), str(cfg.checkpoint_dir(env_id, method, seed))]
+        if cfg.budget(env_id) is not None:
+            args.append(f"--timesteps {cfg.budget(env_id)}")
+        lines.append(train_command(args + hp_flags(cfg.overrides or {}), resume_root, python))
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", default="params.yaml")
+    sub = parser.add_subparsers(dest="command")
+    queue = sub.add_parser("queue", help="print the training line of every run without a checkpoint")
+    queue.add_argument("--resume-root", help="where resume points go (PAPER_LIB_RESUME_ROOT), e.g. /work/resume")
+    queue.add_argument("--envs", nargs="+")
+    queue.add_argument("--methods", nargs="+")
     args = parser.parse_args(argv)
     try:
         cfg = load_run_config(args.params)
+        if args.command == "queue":
+            print("\n".join(queue_lines(cfg, args.resume_root, args.envs, args.methods)))
+            return
     except (ValueError, FileNotFoundError) as err:
         parser.exit(2, f"error: {err}\n")
     print(summary(cfg))

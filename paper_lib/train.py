@@ -19,9 +19,11 @@ Resume points live beside the checkpoint as `.<name>.resume/`, or under $PAPER_L
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import pickle
 import random
+import shlex
 import sys
 import time
 from collections import deque
@@ -200,6 +202,17 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
         pd.DataFrame(curve.rows).to_csv(tmp / "training_curve.csv", index=False)
         write_json_atomic(tmp / "config.json", config)
     return out_dir
+
+
+def hp_flags(overrides: dict[str, Any]) -> list[str]:
+    """Algorithm overrides as this module's `--hp algo.KEY=VALUE` edits (values in YAML/JSON form)."""
+    return [f"--hp {shlex.quote(f'algo.{key}={json.dumps(value)}')}" for key, value in overrides.items()]
+
+
+def train_command(args: list[str], resume_root: str | None = None, python: str = ".venv/bin/python") -> str:
+    """The shell line that trains one run (`python -m paper_lib.train ARGS`), resumable under `resume_root`."""
+    prefix = [f"env PAPER_LIB_RESUME_ROOT={shlex.quote(resume_root)}"] if resume_root else []
+    return " ".join(prefix + [python, "-m", "paper_lib.train"] + args)
 
 
 def apply_hp_edits(hp: dict[str, Any], edits: list[str]) -> dict[str, Any]:

@@ -155,3 +155,20 @@ def test_each_algorithm_is_recognized_from_its_own_zip(tmp_path):
             (folder / "config.json").write_text(json.dumps({**model.paper_lib_config, "algo": other}))
             with pytest.raises(ValueError, match=f"algorithm '{algo}' \\(config.json: '{other}'\\)"):
                 load_checkpoint(folder, "CartPole-v1", "ensemble", 0)
+
+
+def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
+    """`pipeline_status queue`: what `make retrain` would train, as resumable lines, seed 0 of every env first."""
+    from paper_lib.pipeline_status import queue_lines
+
+    use_profile("paper", params)
+    cfg = load_run_config(params)
+    lines = queue_lines(cfg, resume_root="/tmp/resume", envs=["Ant-v5", "Swimmer-v5"], methods=["baseline", "ensemble"])
+    assert len(lines) == 2 * 2 * len(cfg.seeds)
+    assert [line.split()[7] for line in lines[:4]] == ["0"] * 4, "every seed-0 run comes first"
+    ant = [line for line in lines if " Ant-v5 " in line]
+    assert all(line.startswith("env PAPER_LIB_RESUME_ROOT=/tmp/resume ") and line.endswith("--timesteps 1000000")
+               for line in ant), "Ant gets the profile's 1e6 budget"
+    assert not any("--timesteps" in line for line in lines if " Swimmer-v5 " in line)
+    with pytest.raises(ValueError, match=r"env\(s\) \['Foo'\] are not in profile 'paper'"):
+        queue_lines(cfg, envs=["Foo"])

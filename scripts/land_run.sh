@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Land a run trained outside DVC (by scripts/train_queue.sh): collect its ID/OOD states and evaluation
+# episodes with the committed code (a HEAD worktree, so edits in progress in this tree do not leak in),
+# copy them back, and record the train, collect and evaluate stages in dvc.lock (`dvc commit`).
+#   scripts/land_run.sh ENV METHOD SEED [ENV METHOD SEED ...]
+# Then `git add` the run's checkpoint, dataset, evaluation and dvc.lock, and `make reproduce` to score it.
+set -eu
+root=$(git rev-parse --show-toplevel)
+cd "$root"
+py="$root/.venv/bin/python"
+profile=$("$py" -c "from paper_lib.config import load_run_config; print(load_run_config().profile)")
+wt=$(mktemp -d /tmp/land_run.XXXXXX)
+git worktree add -q --detach "$wt" HEAD
+trap 'cd "$root" && git worktree remove --force "$wt"' EXIT
+stages=()
+while [ $# -ge 3 ]; do
+  env_id=$1; method=$2; seed=$3; shift 3
+  ck=results/$profile/checkpoints/$env_id/$method/seed$seed
+  [ -f "$ck/model.zip" ] || { echo "error: $ck/model.zip is missing: train the run first" >&2; exit 2; }
+  mkdir -p "$wt/$ck" && cp -r "$ck/." "$wt/$ck/"
+  (cd "$wt" && nice -n 5 "$py" -m paper_lib.pipeline collect "$env_id" "$method" "$seed" \
+            && nice -n 5 "$py" -m paper_lib.run_results evaluate "$env_id" "$method" "$seed")
+  for part in datasets evaluations; do
+    mkdir -p "results/$profile/$part/$env_id/$method"
+    cp "$wt/results/$profile/$part/$env_id/$method/seed$seed".* "results/$profile/$part/$env_id/$method/"
+  done
+  for stage in train collect evaluate; do stages+=("$stage@$env_id-$method-$seed"); done
+  echo "landed $env_id $method seed $seed"
+done
+"$root/.venv/bin/dvc" commit -f "${stages[@]}"
