@@ -111,6 +111,29 @@ def test_reward_normalization_scales_training_rewards_only(tmp_path):
     assert not plain.norm_reward, "without the setting, observations only (the committed runs' recipe)"
 
 
+def test_atari_checkpoints_store_float16_weights_and_load_as_float32(tmp_path):
+    """Image policies are committed in float16 (half the size); PPO.load gives a float32 policy of the rounded weights."""
+    from paper_lib.checkpoints import load_checkpoint
+
+    game = "SeaquestNoFrameskip-v4"
+    tiny = {"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}, "n_envs": 4}
+    out = train_run(game, "masksembles", 0, tmp_path / "ckpt", total_timesteps=64, agent_kwargs=tiny)
+    ckpt = load_checkpoint(out, game, "masksembles", 0)
+    assert ckpt.config["weights_dtype"] == "float16"
+    full = PPO.load(resume_dir_for(out) / "model.zip", device="cpu")  # the float32 training state
+    params = dict(ckpt.model.policy.named_parameters())
+    for name, trained in full.policy.named_parameters():
+        assert params[name].dtype == th.float32
+        assert th.equal(params[name], trained.detach().half().float()), name
+    obs = np.random.default_rng(0).integers(0, 255, size=(3, 84, 84, 4), dtype=np.uint8)
+    ours, theirs = member_outputs(ckpt.model.policy, obs), member_outputs(full.policy, obs)
+    np.testing.assert_allclose(ours.values, theirs.values, rtol=1e-2, atol=1e-3)
+    float32_bytes = sum(4 * p.numel() for p in full.policy.parameters())
+    assert (out / "model.zip").stat().st_size < 0.6 * float32_bytes, "about half of the float32 weights"
+    mlp = train_run("CartPole-v1", "baseline", 0, tmp_path / "mlp", total_timesteps=64, agent_kwargs=TINY)
+    assert load_checkpoint(mlp).config["weights_dtype"] == "float32"
+
+
 def test_atomic_dir_keeps_the_old_folder_when_writing_fails(tmp_path):
     target = tmp_path / "ckpt"
     with atomic_dir(target) as tmp:
