@@ -32,3 +32,10 @@ env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.train HalfC
 env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.train Ant-v5 masksembles 0 results/recipe_probes/Ant-v5/masksembles/seed0 --timesteps 300000
 env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.train Ant-v5 masksembles 0 results/recipe_probes/Ant-v5/masksembles-normalize/seed0 --timesteps 300000 --hp normalize_obs=true
 env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.train Swimmer-v5 baseline 0 results/recipe_probes/Swimmer-v5/baseline-zoo-normalize/seed0 --hp normalize_obs=true
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Walker2d-v5 baseline 0 results/recipe_probes/Walker2d-v5/baseline-normalize-reward/seed0 --timesteps 300000 --hp normalize_reward=true
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCheetah-v5 mc_dropout 1 results/recipe_probes/HalfCheetah-v5/mc_dropout-normalize-p0.05/seed1 --timesteps 300000 --hp members.dropout_p=0.05
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCheetah-v5 masksembles 1 results/recipe_probes/HalfCheetah-v5/masksembles-normalize/seed1 --timesteps 300000
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCheetah-v5 mc_dropout 1 results/recipe_probes/HalfCheetah-v5/mc_dropout-normalize/seed1 --timesteps 300000
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCheetah-v5 masksembles 0 results/recipe_probes/HalfCheetah-v5/masksembles-normalize-scale3/seed0 --timesteps 300000 --hp members.masksembles_scale=3.0
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize/seed0 --timesteps 300000 --hp normalize_obs=true
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize-reward/seed0 --timesteps 300000 --hp normalize_obs=true --hp normalize_reward=true
