@@ -27,3 +27,4 @@ env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCh
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Walker2d-v5 baseline 0 results/recipe_probes/Walker2d-v5/baseline-normalize-reward/seed0 --timesteps 300000 --hp normalize_reward=true
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train HalfCheetah-v5 mc_dropout 1 results/recipe_probes/HalfCheetah-v5/mc_dropout-normalize-p0.05/seed1 --timesteps 300000 --hp members.dropout_p=0.05
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize/seed0 --timesteps 300000 --hp normalize_obs=true
+env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.train Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize-reward/seed0 --timesteps 300000 --hp normalize_obs=true --hp normalize_reward=true
