@@ -2,6 +2,7 @@
 
 Single-member rows: each of the k members plays its share of the episodes (member m plays
 episodes m, m+k, ...), so every member is represented and the row averages over members.
+Berzerk is played with sampled actions only, as in the paper (`action_modes`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,16 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from paper_lib.checkpoints import Checkpoint
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
+#: Envs evaluated with sampled actions only. The paper: Berzerk "can only be sampled", since a
+#: deterministic agent gets stuck there, and each stuck episode would run to the 27,000-step limit
+#: (108,000 frames) and say nothing about the agent.
+SAMPLED_ONLY_ENVS: frozenset[str] = frozenset({"BerzerkNoFrameskip-v4"})
+
+
+def action_modes(env_id: str) -> tuple[bool, ...]:
+    """The `deterministic` values an env is evaluated with: both, or sampled only (`SAMPLED_ONLY_ENVS`)."""
+    return (False,) if env_id in SAMPLED_ONLY_ENVS else (True, False)
+
 
 def evaluate_rewards(checkpoint: Checkpoint, episodes: int, seed: int) -> pd.DataFrame:
     """One row per episode: inference (combined/single), deterministic, member, reward, length."""
@@ -21,7 +32,7 @@ def evaluate_rewards(checkpoint: Checkpoint, episodes: int, seed: int) -> pd.Dat
     has_members = isinstance(policy, MemberActorCriticPolicy)
     saved = policy.inference if has_members else None
     try:
-        for deterministic in (True, False):
+        for deterministic in action_modes(checkpoint.config["env_id"]):
             for inference in (("combined", "single") if has_members else ("single",)):
                 rows += _episodes(checkpoint, policy, inference, deterministic, episodes, seed, has_members)
     finally:

@@ -1,0 +1,22 @@
+"""Reward evaluation (paper Table 1): which action modes each env is played with."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from paper_lib.agents import make_agent
+from paper_lib.checkpoints import Checkpoint
+from paper_lib.evaluation import evaluate_rewards
+
+
+@pytest.mark.parametrize(("env_id", "modes"), [("BerzerkNoFrameskip-v4", [False]),
+                                               ("HalfCheetah-v5", [True, False])])
+def test_berzerk_is_evaluated_with_sampled_actions_only(env_id, modes, tiny_overrides, tmp_path: Path):
+    # the paper: a deterministic Berzerk agent gets stuck, so its Table 1 cells are sampled only
+    model = make_agent("ppo", "baseline", env_id, seed=0, n_envs=1, overrides=tiny_overrides)
+    checkpoint = Checkpoint(model, {"env_id": env_id, "method": "baseline"}, None, tmp_path)
+    episodes = evaluate_rewards(checkpoint, episodes=1, seed=0)
+    assert sorted(episodes["deterministic"].unique(), reverse=True) == modes
+    assert (episodes["length"] > 0).all()
