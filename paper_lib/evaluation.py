@@ -3,15 +3,24 @@
 Single-member rows: each of the k members plays its share of the episodes (member m plays
 episodes m, m+k, ...), so every member is represented and the row averages over members.
 Berzerk is played with sampled actions only, as in the paper (`action_modes`).
+
+Atari rows also record `source_indicator_max`: the highest value of the game's default OOD
+source's indicator (e.g. Seaquest's level counter) over the whole game. The ID states of the OOD
+benchmark cover only the start of episodes; these full games show whether the trained agent
+reaches the OOD source's values by itself (`paper_lib.ood.play_coverage`).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pandas as pd
 from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecEnv
 
 from paper_lib.checkpoints import Checkpoint
+from paper_lib.envs import is_atari
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
 #: Envs evaluated with sampled actions only. The paper: Berzerk "can only be sampled", since a
@@ -52,12 +61,43 @@ def _episodes(checkpoint: Checkpoint, policy, inference: str, deterministic: boo
         if has_members:
             policy.set_inference(checkpoint.config.get("inference", "vote") if member is None else "single", member)
         env = checkpoint.env(1, seed + (member or 0) * 1000)
+        tracker = IndicatorMaximum(env, checkpoint.config["env_id"]) if is_atari(checkpoint.config["env_id"]) else None
         rewards, lengths = evaluate_policy(checkpoint.model, env, n_eval_episodes=n, deterministic=deterministic,
-                                           return_episode_rewards=True)
+                                           return_episode_rewards=True, callback=tracker)
         env.close()
+        extra = [{"source_indicator_max": m} for m in tracker.maxima] if tracker else [{}] * len(rewards)
         rows += [{"inference": inference, "deterministic": deterministic, "member": member, "reward": float(r),
-                  "length": int(l)} for r, l in zip(rewards, lengths)]
+                  "length": int(l), **x} for r, l, x in zip(rewards, lengths, extra)]
     return rows
+
+
+class IndicatorMaximum:
+    """`evaluate_policy` callback: per finished game, the highest value of the default OOD source's indicator.
+
+    Read after every step of the single env; a game counts as finished where `evaluate_policy`
+    counts it (Monitor's "episode" info, i.e. the game over, not a lost life).
+    """
+
+    def __init__(self, venv: VecEnv, env_id: str) -> None:
+        from paper_lib.ood.atari import DEFAULT_SOURCE, read_indicator
+
+        if venv.num_envs != 1:
+            raise ValueError(f"IndicatorMaximum reads one env, got {venv.num_envs}.")
+        game = env_id.removesuffix("NoFrameskip-v4")
+        env = venv.unwrapped.envs[0]
+        self._read = lambda: read_indicator(env, game, DEFAULT_SOURCE[game])
+        self.maxima: list[int] = []
+        self._current: int | None = None  # no read before evaluate_policy's first reset
+
+    def __call__(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
+        info = locals_["info"]
+        if locals_["done"] and "episode" in info:
+            # the game's last state is gone (the env was reset): its value was read a step before
+            self.maxima.append(self._read() if self._current is None else self._current)
+            self._current = None
+        else:
+            value = self._read()
+            self._current = value if self._current is None else max(self._current, value)
 
 
 def summarize_rewards(df: pd.DataFrame) -> pd.DataFrame:

@@ -128,3 +128,24 @@ def test_the_score_stage_writes_the_check_of_atari_runs(agent, dataset, tmp_path
     assert "source_coverage.csv" not in score_files("HalfCheetah-v5")
     with pytest.raises(FileNotFoundError, match="score those runs again"):
         read_source_coverage(cfg, [(ENV, "baseline", 1)])
+
+
+def test_play_coverage_checks_whole_games_against_the_sources_values():
+    from paper_lib.ood.play_coverage import PLAY_FAILED, PLAY_NOT_RECORDED, PLAY_PASSED, play_coverage
+
+    rows = pd.DataFrame({
+        "env": ["BerzerkNoFrameskip-v4"] * 3 + ["SeaquestNoFrameskip-v4"] * 2 + ["HalfCheetah-v5"],
+        "method": "baseline", "seed": [0, 0, 1, 0, 0, 0],
+        # Berzerk's source sets rooms 10-15; Seaquest's levels 1-16
+        "source_indicator_max": [4, 7, 12, 0, 0, np.nan]})
+    out = play_coverage(rows).set_index(["env", "seed"])
+    assert ("HalfCheetah-v5", 0) not in out.index  # not an Atari run
+    assert out.loc[("BerzerkNoFrameskip-v4", 0), "play_check"] == PLAY_PASSED
+    assert out.loc[("BerzerkNoFrameskip-v4", 0), "play_max"] == 7
+    assert out.loc[("BerzerkNoFrameskip-v4", 1), "play_check"] == PLAY_FAILED
+    assert out.loc[("BerzerkNoFrameskip-v4", 1), "games_at_ood_values"] == 1
+    assert out.loc[("SeaquestNoFrameskip-v4", 0), "play_check"] == PLAY_PASSED
+    old = play_coverage(rows.drop(columns="source_indicator_max"))  # evaluated before the column existed
+    assert set(old["play_check"]) == {PLAY_NOT_RECORDED}
+    with pytest.raises(ValueError, match="missing \\['seed'\\]"):
+        play_coverage(rows.drop(columns="seed"))
