@@ -23,8 +23,10 @@ $(STAMP): environment.lock pyproject.toml
 	$(BIN)/pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
+# Then the README's Results and Benchmarks tables are pasted again from what the pipeline wrote.
 reproduce: $(STAMP)
 	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce
+	$(BIN)/python scripts/readme_results.py
 
 # The former name of `reproduce`.
 regenerate: reproduce
@@ -40,6 +42,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m paper_lib.bench
+	$(BIN)/python scripts/readme_results.py
 
 # MuJoCo renders offscreen with EGL (MUJOCO_GL=egl); these Debian packages provide it. Skipped where
 # apt-get is missing or we are not root: the notebooks then say that frames are unavailable.

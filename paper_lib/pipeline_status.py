@@ -13,6 +13,7 @@ every notebook skips the same runs and the missing ones are listed instead of tr
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -104,6 +105,27 @@ def missing_lines(cfg: RunConfig, table: pd.DataFrame | None = None, artifacts: 
     return lines
 
 
+def training_minutes(cfg: RunConfig, run: Run) -> float | None:
+    """The run's training wall time in minutes (`wall_seconds` of its config.json, all resumed pieces), or None."""
+    config = cfg.checkpoint_dir(*run) / "config.json"
+    if not config.is_file():
+        return None
+    seconds = json.loads(config.read_text()).get("wall_seconds")
+    return None if seconds is None else seconds / 60
+
+
+def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
+    """'Training wall time of the 7 trained runs: 5.3 h in total (one core each), 33-53 min a run' and the like."""
+    table = status_table(cfg) if table is None else table
+    minutes = [m for row in table.itertuples(index=False)
+               if (m := training_minutes(cfg, (row.env, row.method, row.seed))) is not None]
+    if not minutes:
+        return "No trained run records its training wall time yet."
+    return (f"Training wall time of the {len(minutes)} trained runs: {sum(minutes) / 60:.1f} h in total (one core "
+            f"each, the sum of each run's `wall_seconds` in its config.json), {min(minutes):.0f}-{max(minutes):.0f} "
+            "min a run.")
+
+
 def summary(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
     """'8 of 10 runs of profile cpu are complete; 2 are missing something' and the like."""
     table = status_table(cfg) if table is None else table
@@ -132,7 +154,7 @@ def write_status(cfg: RunConfig, stale: set[str] | None = None) -> Path:
     lines = missing_lines(cfg, table)
     text = [f"# Runs of {summary(cfg, table)}", "",
             ("Tables and figures are built from the runs that have what they need; nothing is trained or "
-             "collected by `make reproduce`."), ""]
+             "collected by `make reproduce`."), "", training_time_line(cfg, table), ""]
     text += (["Missing:", ""] + [f"- {line}" for line in lines] if lines else ["Nothing is missing."]) + [""]
     text += [f"- {line}" for line in stale_lines(table)] + ([""] if stale_lines(table) else [])
     text += [table.to_markdown(index=False), ""]

@@ -1,9 +1,11 @@
-"""Paste the active profile's tables into README.md's "Results" section, verbatim.
+"""Paste the active profile's tables into README.md's "Results" section, and the benchmark's ratios into "Benchmarks".
 
 README numbers must be the pipeline's: this copies results/<profile>/tables/*.md between the markers
 `<!-- results:start -->` and `<!-- results:end -->`, with the run count from results/<profile>/runs.md
 and a short reading computed from the same tables (nothing typed by hand). Works on a partial matrix:
 cells of runs not trained yet are NaN in the tables and left out of the reading.
+The benchmark's cost ratios (results/bench/bench.csv, `make bench`) go between
+`<!-- bench:start -->` and `<!-- bench:end -->`.
     python scripts/readme_results.py [PROFILE]     # default: the active profile of params.yaml
 """
 
@@ -15,6 +17,21 @@ from pathlib import Path
 import pandas as pd
 
 START, END = "<!-- results:start -->", "<!-- results:end -->"
+BENCH_START, BENCH_END = "<!-- bench:start -->", "<!-- bench:end -->"
+BENCH_METHODS = ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")
+#: README rows of the benchmark: (env, measurement, label).
+BENCH_ROWS = (
+    ("HalfCheetah-v5", "train_steps_per_s", "HalfCheetah training"),
+    ("SeaquestNoFrameskip-v4", "train_steps_per_s", "Seaquest training"),
+    ("HalfCheetah-v5", "act_uncertainty_b1",
+     "HalfCheetah, one state: action + every measure (`act_with_uncertainty`) vs plain `predict`"),
+    ("SeaquestNoFrameskip-v4", "act_uncertainty_b1", "Seaquest, the same"),
+    ("HalfCheetah-v5", "uncertainty_b4096",
+     "HalfCheetah, every measure on 4096 states vs a plain `predict` of them (issue target: Masksembles 2x, see below)"),
+    ("SeaquestNoFrameskip-v4", "uncertainty_b4096", "Seaquest, the same"),
+    ("SeaquestNoFrameskip-v4", "rss_increase_infer_mb",
+     "Seaquest, peak memory scoring 4096 states, above the process (issue target: 1.5x)"),
+)
 MEMBER_MEASURES = ("value_std", "policy_std", "policy_js")
 FREE_PREFIXES = ("mahalanobis", "knn")
 
@@ -65,6 +82,47 @@ def run_count(results: Path) -> str:
     return first.lstrip("# ").removeprefix("Runs of ").strip()
 
 
+def training_time(results: Path) -> str:
+    """The training wall-time line of runs.md (`pipeline_status.training_time_line`), or '' if it has none."""
+    status = results / "runs.md"
+    lines = status.read_text().splitlines() if status.exists() else []
+    return next((line for line in lines if line.startswith("Training wall time")), "")
+
+
+def bench_table(csv: Path) -> str:
+    """The methods' cost ratios against plain SB3 PPO, one row per README measurement, bold where a target is met."""
+    bench = pd.read_csv(csv)
+    lines = ["| | " + " | ".join({"masksembles": "Masksembles", "mc_dropout": "MC Dropout",
+                                   "mc_dropconnect": "MC DropConnect", "ensemble": "Ensemble (k=4)"}[m]
+                                  for m in BENCH_METHODS) + " | target |", "|---" * (len(BENCH_METHODS) + 2) + "|"]
+    for env, measurement, label in BENCH_ROWS:
+        rows = bench[(bench.env_id == env) & (bench.measurement == measurement)].set_index("method")
+        cells, targets = [], {}
+        for method in BENCH_METHODS:
+            if method not in rows.index:
+                cells.append("-")
+                continue
+            row = rows.loc[method]
+            met = row.meets_target == "yes"
+            cells.append(f"**{row.ratio_to_baseline:.2f}x**" if met else f"{row.ratio_to_baseline:.2f}x")
+            if pd.notna(row.target):
+                targets[method] = f"{row.target:g}x"
+        common = targets.get(BENCH_METHODS[0], "-")
+        others = "; ".join(f"{m} {t}" for m, t in targets.items() if t != common)
+        target = common + (f" ({others})" if others else "")
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {target} |")
+    return "\n".join(lines)
+
+
+def paste(readme: str, start: str, end: str, body: str) -> str:
+    """`readme` with the text between the `start` and `end` markers replaced by `body`."""
+    head, _, rest = readme.partition(start)
+    if not rest:
+        raise SystemExit(f"README.md has no {start} marker")
+    _, _, tail = rest.partition(end)
+    return head + start + "\n\n" + body + "\n\n" + end + tail
+
+
 def main(profile: str | None = None) -> None:
     if profile is None:
         from paper_lib.config import load_run_config
@@ -72,18 +130,17 @@ def main(profile: str | None = None) -> None:
         profile = load_run_config().profile
     results = Path("results") / profile
     tables = results / "tables"
-    parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`).",
+    parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`). {training_time(results)}".strip(),
              f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}",
              f"### Reward against the paper\n\n{(tables / 'paper_vs_us_rewards.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{(tables / 'ood_auroc_perturbed.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC, noise states (2x ID std)\n\n{(tables / 'ood_auroc_noise.md').read_text().strip()}",
              reading(tables)]
-    readme = Path("README.md").read_text()
-    head, _, rest = readme.partition(START)
-    _, _, tail = rest.partition(END)
-    if not rest:
-        raise SystemExit(f"README.md has no {START} marker")
-    Path("README.md").write_text(head + START + "\n\n" + "\n\n".join(parts) + "\n\n" + END + tail)
+    readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
+    bench = Path("results/bench/bench.csv")
+    if bench.exists():
+        readme = paste(readme, BENCH_START, BENCH_END, bench_table(bench))
+    Path("README.md").write_text(readme)
 
 
 if __name__ == "__main__":
