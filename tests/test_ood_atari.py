@@ -71,7 +71,7 @@ def test_every_source_changes_the_states(game):
         assert (ood_states != id_states).any(), f"{config} left the game unchanged"
 
 
-@pytest.mark.parametrize(("game", "address"), [("Seaquest", 61), ("MsPacman", 0), ("Berzerk", 92)])
+@pytest.mark.parametrize(("game", "address"), [("Seaquest", 60), ("Seaquest", 61), ("MsPacman", 0), ("Berzerk", 92)])
 def test_ram_edit_in_force_after_every_reset(game, address):
     config = AtariOODConfig(game, DEFAULT_SOURCE[game], source_values(game, DEFAULT_SOURCE[game])[0], seed=3)
     env = make_ood_atari_env(config, terminal_on_life_loss=False)
@@ -146,5 +146,5 @@ def test_the_indicator_reads_what_the_default_source_sets(game):
         env = make_ood_atari_env(AtariOODConfig(game, source, value, seed=0))
         env.reset()
         assert read_indicator(env, game, source) == value
-    expected = {"Seaquest": "RAM 61", "MsPacman": "RAM 0", "Berzerk": "RAM 92", "SpaceInvaders": "ALE mode"}
+    expected = {"Seaquest": "RAM 60", "MsPacman": "RAM 0", "Berzerk": "RAM 92", "SpaceInvaders": "ALE mode"}
     assert indicator_name(game, source) == expected[game]

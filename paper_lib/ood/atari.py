@@ -46,9 +46,11 @@ class _Source:
 
 _SOURCES: dict[str, dict[str, _Source]] = {
     "Seaquest": {
-        # The game itself sets RAM 61 (level) and 60 (surface-patrol counter) to k after
-        # the k-th surfacing with six rescued divers (checked with a scripted dive).
-        "level": _Source(tuple(range(1, 17)), ram=(61, 60),
+        # The game itself sets RAM 60 (surface-patrol counter) and 61 to k after the k-th
+        # surfacing with six rescued divers (checked with a scripted dive). RAM 61 alone already
+        # goes 0 -> 1 at the first surfacing with any diver aboard (seen in untrained play), so
+        # the indicator the coverage checks read is RAM 60, which only six-diver surfacings move.
+        "level": _Source(tuple(range(1, 17)), ram=(60, 61),
                          what="later level: new enemy colours and formations, a patrol sub on the surface"),
         "extra_lives": _Source((4, 5, 6), ram=(59,),
                                what="reserve submarines shown at the top (one is earned per 10,000 points)"),
@@ -90,8 +92,10 @@ DEFAULT_SOURCE: dict[str, str] = {
 
 OOD_SOURCE_NOTES: dict[str, str] = {
     "Seaquest": (
-        "Default `level` (values 1-16): RAM bytes 61 and 60 are set to k after every reset, the state the game "
-        "itself enters after the k-th surfacing with six rescued divers (checked with a scripted dive). "
+        "Default `level` (values 1-16): RAM bytes 60 and 61 are set to k after every reset, the state the game "
+        "itself enters after the k-th surfacing with six rescued divers (checked with a scripted dive). RAM 61 "
+        "alone goes to 1 at the first surfacing with any diver aboard, which agents do; RAM 60 (the surface "
+        "patrol) moves only with six divers, so it is the indicator the coverage checks read. "
         "Enemies change colour and formation, and at higher levels an enemy patrols the surface. Agents at "
         "the paper's scores (~4,000) never surface with six divers, so they only ever see level 0. The first "
         "enemies enter about 30 agent steps after a reset or a death; the states before look like level 0, "
@@ -160,8 +164,8 @@ def describe_source(game: str, source: str) -> str:
 def indicator_name(game: str, source: str) -> str:
     """What ``read_indicator`` reads for a source: "RAM 92", "ALE mode", ...
 
-    A RAM source is read at its first address (Seaquest's level at RAM 61, not the patrol
-    counter at 60, which the game sets to the same value).
+    A RAM source is read at its first address (Seaquest's level at RAM 60, the surface-patrol
+    counter, which only six-diver surfacings move; not RAM 61, which ordinary surfacing moves too).
     """
     source_values(game, source)  # validates
     spec = _SOURCES[game][source]
