@@ -79,11 +79,11 @@ class IndicatorMaximum:
     """
 
     def __init__(self, venv: VecEnv, env_id: str) -> None:
-        from paper_lib.ood.atari import DEFAULT_SOURCE, read_indicator
+        from paper_lib.ood.atari import DEFAULT_SOURCE, game_of, read_indicator
 
         if venv.num_envs != 1:
             raise ValueError(f"IndicatorMaximum reads one env, got {venv.num_envs}.")
-        game = env_id.removesuffix("NoFrameskip-v4")
+        game = game_of(env_id)
         env = venv.unwrapped.envs[0]
         self._read = lambda: read_indicator(env, game, DEFAULT_SOURCE[game])
         self.maxima: list[int] = []

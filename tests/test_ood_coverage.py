@@ -19,7 +19,7 @@ from paper_lib.checkpoints import Checkpoint
 from paper_lib.ood import collect as collect_module
 from paper_lib.ood.atari import AtariOODConfig, make_ood_atari_env
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states
-from paper_lib.ood.coverage import COVERAGE_COLUMNS, FAILED, NOT_CHECKED, PASSED, source_coverage
+from paper_lib.ood.coverage import COVERAGE_COLUMNS, FAILED, NOT_CHECKED, PASSED, STALE, source_coverage
 from paper_lib.ood.datasets import StateDataset, concat
 from paper_lib.run_results import read_source_coverage, score_files, score_run_files
 
@@ -83,6 +83,18 @@ def test_datasets_without_indicators_still_load_and_say_so(dataset, tmp_path):
     assert loaded.source_indicator is None and np.array_equal(loaded.states, dataset.states)
     row = source_coverage(loaded).iloc[0]
     assert row.check == NOT_CHECKED and row.n_id_recorded == 0 and pd.isna(row.id_max)
+
+
+def test_a_dataset_that_read_another_indicator_is_stale_not_passed(dataset):
+    """A dataset collected before the source's indicator changed (Seaquest: RAM 61 -> 60) must not pass."""
+    def reread(part: dict) -> dict:
+        if part.get("kind") != "id":
+            return part
+        return {**part, "source_indicator": {**part["source_indicator"], "read": "RAM 93"}}
+    older = dataclasses.replace(dataset, metadata={**dataset.metadata,
+                                                   "parts": [reread(p) for p in dataset.metadata["parts"]]})
+    row = source_coverage(older).iloc[0]
+    assert row.check == STALE and row.indicator == "RAM 93" and row.id_states_at_ood_values == 0
 
 
 def test_bad_inputs_raise_one_clear_error(agent, dataset):

@@ -138,6 +138,14 @@ def env_id(game: str) -> str:
     return f"{game}NoFrameskip-v4"
 
 
+def game_of(atari_env_id: str) -> str:
+    """The benchmark's game name of a gymnasium id, the inverse of ``env_id`` ("SeaquestNoFrameskip-v4" -> "Seaquest")."""
+    game = atari_env_id.removesuffix("NoFrameskip-v4")
+    if game not in ATARI_GAMES:
+        raise ValueError(f"unknown Atari env {atari_env_id!r}: use one of {[env_id(g) for g in ATARI_GAMES]}.")
+    return game
+
+
 def ood_sources(game: str) -> list[str]:
     """Names of the OOD sources of ``game``; the default one first."""
     _check_game(game)

@@ -45,6 +45,8 @@ from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
 from paper_lib.ood.atari import (
     ATARI_GAMES,
     DEFAULT_SOURCE,
+    env_id as atari_env_id,
+    game_of,
     indicator_name,
     make_atari_env_single,
     make_ood_atari_env,
@@ -398,13 +400,6 @@ def _metadata(kind: str, env_id: str, model: BaseAlgorithm | BasePolicy, action_
 # ------------------------------------------------------------------------------ env makers
 
 
-def _atari_game(env_id: str) -> str:
-    game = env_id.removesuffix("NoFrameskip-v4")
-    if game not in ATARI_GAMES:
-        raise ValueError(f"unknown Atari env {env_id!r}: use one of {[g + 'NoFrameskip-v4' for g in ATARI_GAMES]}.")
-    return game
-
-
 def _indicator_reader(env: gym.Env, game: str, source: str) -> Callable[[], int]:
     """Reads ``source``'s indicator from ``env``'s emulator, for ``_Run.indicator``."""
     return lambda: read_indicator(env, game, source)
@@ -428,13 +423,13 @@ def _seeded_venv(env: gym.Env, seed: int) -> VecEnv:
 
 def _check_env_id(env_id: str) -> None:
     if is_atari(env_id):
-        _atari_game(env_id)
+        game_of(env_id)
         return
     try:
         gym.spec(env_id)
     except gym.error.Error as err:
         raise ValueError(f"unknown env id {env_id!r} ({err}); the paper's envs are {list(SUPPORTED_ENVS)} "
-                         f"and {[g + 'NoFrameskip-v4' for g in ATARI_GAMES]}.") from err
+                         f"and {[atari_env_id(g) for g in ATARI_GAMES]}.") from err
 
 
 # ----------------------------------------------------------------------------- collectors
@@ -458,7 +453,7 @@ def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: 
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be a gymnasium id string, got {type(env_id).__name__}.")
     _check_env_id(env_id)
-    game = _atari_game(env_id) if is_atari(env_id) else None
+    game = game_of(env_id) if is_atari(env_id) else None
     if game is None and indicator_source is not None:
         raise ValueError(f"indicator_source={indicator_source!r} applies to Atari games only; drop it for {env_id}.")
     if game is not None:
@@ -544,7 +539,7 @@ def collect_atari_ood_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_s
     """
     if not isinstance(env_id, str):
         raise TypeError(f"env_id must be an Atari id like 'SeaquestNoFrameskip-v4', got {type(env_id).__name__}.")
-    game = _atari_game(env_id)
+    game = game_of(env_id)
     n_states, steps_per_config, protocol_name = _protocol(n_states, configs, steps_per_config)
     configs = None if steps_per_config is None else n_states // steps_per_config
     actor, policy_kind = _prepare(model, env_id, n_states, action_mode, seed, max_episode_steps, skip_first, None)

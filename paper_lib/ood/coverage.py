@@ -24,6 +24,7 @@ COVERAGE_COLUMNS = ("game", "ood_source", "indicator", "ood_values", "n_id_state
                     "id_max", "id_values", "id_states_at_ood_values", "id_share_at_ood_values",
                     "ood_share_at_ood_values", "check")
 PASSED, FAILED, NOT_CHECKED = "passed", "failed: ID play reached OOD values", "not recorded: recollect the dataset"
+STALE = "stale: the ID states recorded another indicator than the source's today; recollect the dataset"
 
 
 def _values_text(values: Any) -> str:
@@ -70,12 +71,20 @@ def _sources(dataset: StateDataset, game: str) -> tuple[str, str | None]:
     return ood_source, recorded_source
 
 
+def _recorded_read(dataset: StateDataset) -> str | None:
+    """What the ID states' indicator read when they were collected ("RAM 60", ...), None if not said."""
+    reads = [(p.get("source_indicator") or {}).get("read") for p in _parts(dataset) if p.get("kind") == "id"]
+    return next((r for r in reads if r), None)
+
+
 def source_coverage(dataset: StateDataset, game: str | None = None) -> pd.DataFrame:
     """One row: the indicator values the ID states reached, and whether any is an OOD value.
 
     ``check`` is "passed" (no ID state at an OOD value), "failed: ..." (some were: the source
-    does not give unseen states for this agent) or "not recorded: ..." (a dataset collected
-    before the indicator was recorded; the counts are then empty). ``ood_share_at_ood_values``
+    does not give unseen states for this agent), "not recorded: ..." (a dataset collected
+    before the indicator was recorded; the counts are then empty) or "stale: ..." (the ID states
+    read another quantity than the source's indicator reads today, e.g. Seaquest's RAM 61 before
+    it became RAM 60; ``indicator`` then names what was read). ``ood_share_at_ood_values``
     shows the edit in force on the OOD states (below 1 where play moves a counter on, e.g.
     Berzerk's rooms after a death). ``game`` defaults to the one in the dataset's metadata.
     """
@@ -92,15 +101,18 @@ def source_coverage(dataset: StateDataset, game: str | None = None) -> pd.DataFr
     ood_states = (dataset.labels == OOD_LABEL) & (dataset.source == ood_source) & (indicator != NOT_RECORDED)
     at_ood = np.isin(id_values, ood_values)
     recorded = len(id_values) > 0
+    read_now = indicator_name(game, ood_source)
+    read_then = _recorded_read(dataset) or read_now  # datasets older than the recorded "read" are taken as today's
+    check = NOT_CHECKED if not recorded else STALE if read_then != read_now else FAILED if at_ood.any() else PASSED
     row = {
-        "game": game, "ood_source": ood_source, "indicator": indicator_name(game, ood_source),
+        "game": game, "ood_source": ood_source, "indicator": read_then,
         "ood_values": _values_text(ood_values), "n_id_states": int(is_id.sum()), "n_id_recorded": len(id_values),
         "id_min": int(id_values.min()) if recorded else None, "id_max": int(id_values.max()) if recorded else None,
         "id_values": _values_text(id_values), "id_states_at_ood_values": int(at_ood.sum()),
         "id_share_at_ood_values": float(at_ood.mean()) if recorded else np.nan,
         "ood_share_at_ood_values": (float(np.isin(indicator[ood_states], ood_values).mean()) if ood_states.any()
                                     else np.nan),
-        "check": NOT_CHECKED if not recorded else FAILED if at_ood.any() else PASSED,
+        "check": check,
     }
     frame = pd.DataFrame([row], columns=list(COVERAGE_COLUMNS))
     return frame.astype({"id_min": "Int64", "id_max": "Int64"})

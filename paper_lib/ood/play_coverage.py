@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from paper_lib.envs import is_atari
-from paper_lib.ood.atari import DEFAULT_SOURCE, source_values
+from paper_lib.ood.atari import DEFAULT_SOURCE, game_of, source_values
 
 
 #: The columns of ``play_coverage``'s rows, in order (after env, method, seed).
@@ -37,7 +37,7 @@ def play_coverage(episodes: pd.DataFrame) -> pd.DataFrame:
     for (env_id, method, seed), games in episodes.groupby(["env", "method", "seed"], sort=False):
         if not is_atari(env_id):
             continue
-        game = env_id.removesuffix("NoFrameskip-v4")
+        game = game_of(env_id)
         values = np.array(source_values(game, DEFAULT_SOURCE[game]))
         reached = games["source_indicator_max"].dropna() if "source_indicator_max" in games else pd.Series([], dtype=float)
         at_ood = np.isin(reached.astype(int), values)
