@@ -5,7 +5,8 @@ README numbers must be the pipeline's: this copies results/<profile>/tables/*.md
 and a short reading computed from the same tables (nothing typed by hand). Works on a partial matrix:
 cells of runs not trained yet are NaN in the tables and left out of the reading.
 The benchmark's cost ratios (results/bench/bench.csv, `make bench`) go between
-`<!-- bench:start -->` and `<!-- bench:end -->`.
+`<!-- bench:start -->` and `<!-- bench:end -->`, and the recipe probes behind "Deviations and choices"
+(results/recipe_probes/summary_by_variant.csv) between `<!-- probes:start -->` and `<!-- probes:end -->`.
     python scripts/readme_results.py [PROFILE]     # default: the active profile of params.yaml
 """
 
@@ -18,6 +19,12 @@ import pandas as pd
 
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 BENCH_START, BENCH_END = "<!-- bench:start -->", "<!-- bench:end -->"
+PROBES_START, PROBES_END = "<!-- probes:start -->", "<!-- probes:end -->"
+PROBES_CSV = Path("results/recipe_probes/summary_by_variant.csv")
+#: The probe table's columns: (summary_by_variant column, README header).
+PROBE_COLUMNS = (("seeds", "seeds"), ("train@100k", "100k"), ("train@200k", "200k"), ("train@300k", "300k"),
+                 ("train@1000k", "1e6"), ("eval_deterministic", "eval det."), ("eval_sampled", "eval sampled"),
+                 ("train@300k per seed", "300k per seed"))
 BENCH_METHODS = ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")
 #: README rows of the benchmark: (env, measurement, label).
 BENCH_ROWS = (
@@ -114,6 +121,17 @@ def bench_table(csv: Path) -> str:
     return "\n".join(lines)
 
 
+def probe_table(csv: Path) -> str:
+    """Every recipe probe's training reward (mean over its seeds) and final evaluation, one row per probe."""
+    probes = pd.read_csv(csv)
+    cell = lambda v: "-" if pd.isna(v) else v if isinstance(v, str) else f"{v:.0f}"
+    lines = ["| probe (env/variant) | " + " | ".join(h for _, h in PROBE_COLUMNS) + " |",
+             "|---" * (len(PROBE_COLUMNS) + 1) + "|"]
+    lines += ["| " + " | ".join([row["probe"]] + [cell(row[c]) for c, _ in PROBE_COLUMNS]) + " |"
+              for _, row in probes.iterrows()]
+    return "\n".join(lines)
+
+
 def paste(readme: str, start: str, end: str, body: str) -> str:
     """`readme` with the text between the `start` and `end` markers replaced by `body`."""
     head, _, rest = readme.partition(start)
@@ -140,6 +158,8 @@ def main(profile: str | None = None) -> None:
     bench = Path("results/bench/bench.csv")
     if bench.exists():
         readme = paste(readme, BENCH_START, BENCH_END, bench_table(bench))
+    if PROBES_CSV.exists():
+        readme = paste(readme, PROBES_START, PROBES_END, probe_table(PROBES_CSV))
     Path("README.md").write_text(readme)
 
 

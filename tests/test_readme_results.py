@@ -35,6 +35,8 @@ def test_committed_readme_matches_what_the_script_pastes(tmp_path: Path):
     for part in (f"results/{profile}/tables", "results/bench"):
         shutil.copytree(REPO / part, tmp_path / part)
     shutil.copy(REPO / f"results/{profile}/runs.md", tmp_path / f"results/{profile}/runs.md")
+    (tmp_path / readme_results.PROBES_CSV).parent.mkdir(parents=True)
+    shutil.copy(REPO / readme_results.PROBES_CSV, tmp_path / readme_results.PROBES_CSV)
     subprocess.run([sys.executable, str(REPO / "scripts/readme_results.py"), profile], cwd=tmp_path, check=True)
     assert (tmp_path / "README.md").read_text() == (REPO / "README.md").read_text(), (
         "README.md differs from what `python scripts/readme_results.py` pastes: run it and commit README.md")
