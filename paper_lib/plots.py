@@ -128,6 +128,29 @@ def uncertainty_over_time(df: pd.DataFrame) -> Figure:
     return fig
 
 
+def uncertainty_from_spawn(df: pd.DataFrame, spawn_steps: int) -> Figure:
+    """Relative uncertainty per step after reset, colour = method, above the share of steps in the air.
+
+    Expects columns step, relative, method, airborne (bool). ``relative`` is a run's uncertainty
+    over its own mean after the spawn window, so methods with different spreads share one axis;
+    a dashed line marks the end of the spawn window.
+    """
+    require_columns(df, ["step", "relative", "method", "airborne"], "uncertainty_from_spawn")
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    sns.lineplot(data=df, x="step", y="relative", hue="method", errorbar=None, linewidth=0.9, ax=top,
+                 hue_order=list(pd.unique(df["method"])))
+    top.axhline(1.0, color="grey", linewidth=0.6)
+    top.set(ylabel="uncertainty / its mean later")
+    air = df.groupby("step")["airborne"].mean()
+    bottom.fill_between(air.index, air.to_numpy(), step="mid", color="tab:grey", alpha=0.6)
+    bottom.set(xlabel="step after reset", ylabel="in the air", ylim=(0, 1))
+    for ax in (top, bottom):
+        ax.axvline(spawn_steps - 0.5, color="black", linestyle="--", linewidth=0.8)
+    return fig
+
+
 def training_curves(df: pd.DataFrame) -> Figure:
     """Episode reward over training, one panel per env: mean over seeds with a ±1 std band.
 
