@@ -154,6 +154,9 @@ def main(profile: str | None = None) -> None:
              f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{(tables / 'ood_auroc_perturbed.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC, noise states (2x ID std)\n\n{(tables / 'ood_auroc_noise.md').read_text().strip()}",
              reading(tables)]
+    claims = tables / "paper_claims.md"
+    if claims.exists():
+        parts.append(f"### The paper's claims, checked (notebook 6)\n\n{claims.read_text().strip()}")
     readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
     bench = Path("results/bench/bench.csv")
     if bench.exists():

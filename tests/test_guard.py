@@ -13,6 +13,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pandas as pd
 import pytest
 import torch as th
 import yaml
@@ -40,6 +41,7 @@ from paper_lib.guard import (
 from paper_lib.guard.conformal import false_alarm_bound, min_calibration_size
 from paper_lib.guard.experiment import Plan, run_episode
 from paper_lib.guard.settings import load_settings, parse_settings
+from paper_lib.ood.collect import ActionMode
 from paper_lib.ood.mujoco import PerturbationConfig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -485,3 +487,49 @@ def test_notebook_8_runs_at_the_tiny_budget(tiny_repo, tmp_path):
     text = json.loads(out.read_text())
     summary = [o for c in text["cells"] for o in c.get("outputs", []) if "text/markdown" in o.get("data", {})]
     assert summary and "ID test episodes" in "".join(summary[-1]["data"]["text/markdown"])
+
+
+# ------------------------------------------------------------------------------- the per-run cache
+
+
+def test_a_run_is_replayed_only_when_its_inputs_change(tiny_repo, tiny_models, tmp_path):
+    import dataclasses
+
+    from paper_lib.guard.cache import FOLDER, TABLES, cached_experiment, fingerprint
+
+    _, settings = load_settings(tiny_repo / "params.yaml")
+    mode, run = ActionMode(deterministic=False), tiny_models["masksembles"]
+    first, cached = cached_experiment(run, settings, mode, 0, tmp_path)
+    assert not cached and first.guards
+    stored = {name: (tmp_path / FOLDER / f"{name}.pkl").read_bytes() for name in TABLES}
+    again, cached = cached_experiment(run, settings, mode, 0, tmp_path)
+    assert cached and not again.guards and again.n_redrawn == first.n_redrawn
+    for name in TABLES:
+        pd.testing.assert_frame_equal(getattr(again, name), getattr(first, name))
+    (tmp_path / FOLDER / "fingerprint.json").unlink()  # a replay of the same inputs writes the same bytes
+    assert not cached_experiment(run, settings, mode, 0, tmp_path)[1]
+    assert stored == {name: (tmp_path / FOLDER / f"{name}.pkl").read_bytes() for name in TABLES}
+    key = fingerprint(run, settings, mode, 0)
+    assert key != fingerprint(run, dataclasses.replace(settings, alpha=0.1), mode, 0)
+    assert key != fingerprint(run, settings, ActionMode(deterministic=True), 0)
+    assert key != fingerprint(run, settings, mode, 1)
+    assert key != fingerprint(tiny_models["baseline"], settings, mode, 0)
+
+
+def test_the_fingerprint_covers_every_module_a_guard_experiment_runs(tiny_repo):
+    # a fresh interpreter: which paper_lib modules does a real (tiny) guard experiment import?
+    script = f"""
+import sys
+from paper_lib.guard.cache import cached_experiment
+from paper_lib.guard.settings import load_settings
+from paper_lib.checkpoints import load_checkpoint
+from paper_lib.ood.collect import ActionMode
+cfg, settings = load_settings({str(tiny_repo / 'params.yaml')!r})
+run = load_checkpoint(cfg.checkpoint_dir({ENV!r}, 'masksembles', 0))
+cached_experiment(run, settings, ActionMode(deterministic=False), 0, {str(tiny_repo / 'fingerprint_check')!r})
+print(' '.join(sorted(m for m in sys.modules if m.startswith('paper_lib'))))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    from paper_lib.guard.cache import SOURCE_MODULES
+
+    assert set(done.stdout.split()) <= set(SOURCE_MODULES), set(done.stdout.split()) - set(SOURCE_MODULES)

@@ -104,7 +104,7 @@ def test_every_table_and_figure_from_the_runs_that_exist(tiny_repo):
         assert files, f"{out} is empty"
         assert all(f.stat().st_size > 0 for f in files), out
     for stem in ("rewards", "ood_auroc_perturbed", "ood_auroc_noise", "ood_metrics", "paper_vs_us_rewards",
-                 "paper_vs_us_auroc", "perturbation_ratios", "spawn_uncertainty"):
+                 "paper_vs_us_auroc", "perturbation_ratios", "spawn_uncertainty", "paper_claims"):
         for suffix in (".csv", ".md", ".tex"):
             assert (results / "tables" / f"{stem}{suffix}").stat().st_size > 0
     for stem in ("training_curves", "roc_value_policy", "roc_policy_js"):
