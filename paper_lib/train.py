@@ -206,7 +206,7 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
         model.learn(steps - resumed_from, callback=curve, progress_bar=progress_bar, reset_num_timesteps=resumed_from == 0)
     config = {**model.paper_lib_config, "total_timesteps": steps, "trained_timesteps": int(model.num_timesteps),
               "wall_seconds": curve.wall_seconds, "resumed_from": resumed_from or None, "torch_threads": torch_threads,
-              "versions": package_versions(), "machine": machine()}
+              "device": str(model.device), "versions": package_versions(), "machine": machine()}
     if model.num_timesteps >= steps and resume:  # a full resume point first: the export below drops the optimizer
         save_resume_point(model, resume_dir, curve.rows, curve.wall_seconds)
     strip_training_state(model)
@@ -274,6 +274,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="continue from the last resume point if there is one (default: yes)")
     parser.add_argument("--resume-every", type=int, default=RESUME_EVERY, help="steps between resume points")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the networks, e.g. cuda on a lent GPU machine (default: cpu)")
     parser.add_argument("--tensorboard", action="store_true", help="write TensorBoard logs beside the resume point")
     parser.add_argument("--progress-bar", action="store_true")
     args = parser.parse_args(argv)
@@ -284,7 +286,11 @@ def main(argv: list[str] | None = None) -> None:
             raise ValueError(f"--resume-every must be a positive number of steps, got {args.resume_every}")
         if args.threads <= 0:
             raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
-        agent_kwargs: dict[str, Any] = {"assignment": args.assignment}
+        try:
+            th.device(args.device)
+        except RuntimeError:
+            raise ValueError(f"--device must be a torch device such as cpu or cuda, got {args.device!r}") from None
+        agent_kwargs: dict[str, Any] = {"assignment": args.assignment, "device": args.device}
         if args.hp:
             from paper_lib.agents import paper_hyperparameters
 

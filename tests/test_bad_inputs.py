@@ -312,6 +312,7 @@ CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
     ("timesteps-fraction", "paper_lib.train", [*TRAIN, "--timesteps", "2.5"], "good", r"invalid int value: '2\.5'"),
     ("resume-every-0", "paper_lib.train", [*TRAIN, "--resume-every", "0"], "good", r"--resume-every must be a positive"),
     ("threads-0", "paper_lib.train", [*TRAIN, "--threads", "0"], "good", r"--threads must be a positive"),
+    ("device-unknown", "paper_lib.train", [*TRAIN, "--device", "gpu0"], "good", r"--device must be a torch device such as cpu or cuda, got .gpu0."),
     ("train-seed-negative", "paper_lib.train", ["CartPole-v1", "ensemble", "-1", "out"], "good", r"seed must be an integer >= 0"),
     ("train-method-unknown", "paper_lib.train", ["CartPole-v1", "bayes", "0", "out"], "good", r"unknown method 'bayes'"),
     ("train-env-unknown", "paper_lib.train", ["Hopper-v5", "ensemble", "0", "out"], "good", r"unknown environment 'Hopper-v5'"),

@@ -152,33 +152,58 @@ def test_bad_action_modes(kwargs, match):
         ActionMode(**kwargs)
 
 
-class _NaNAfter(gym.Wrapper):
-    """Fault injection: a real env whose observations turn NaN at step ``at``."""
+class _FaultAt(gym.Wrapper):
+    """Fault injection: a real env whose observations turn NaN (``"nan"``) or whose every episode
+    terminates (``"end"``) at step ``at``."""
 
-    def __init__(self, env: gym.Env, at: int):
+    def __init__(self, env: gym.Env, fault: str, at: int):
         super().__init__(env)
-        self.at, self.t = at, 0
+        self.fault, self.at, self.t = fault, at, 0
+
+    def reset(self, **kwargs):
+        self.t = 0
+        return self.env.reset(**kwargs)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self.t += 1
-        return (np.full_like(obs, np.nan) if self.t >= self.at else obs), reward, terminated, truncated, info
+        if self.t >= self.at and self.fault == "nan":
+            obs = np.full_like(obs, np.nan)
+        return obs, reward, terminated or (self.t >= self.at and self.fault == "end"), truncated, info
+
+
+def _first_config_faulty(monkeypatch, fault: str, at: int) -> list[PerturbationConfig]:
+    """Make the first configuration drawn faulty; returns every configuration drawn, in order."""
+    made: list[PerturbationConfig] = []
+
+    def make(config):
+        made.append(config)
+        env = make_perturbed_env(config)
+        return _FaultAt(env, fault, at) if len(made) == 1 else env
+
+    monkeypatch.setattr(collect, "make_perturbed_env", make)
+    return made
 
 
 def test_unstable_configuration_is_reported_discarded_and_resampled(cheetah, monkeypatch):
-    made: list[PerturbationConfig] = []
-
-    def first_one_blows_up(config):
-        made.append(config)
-        env = make_perturbed_env(config)
-        return _NaNAfter(env, at=12) if len(made) == 1 else env
-
-    monkeypatch.setattr(collect, "make_perturbed_env", first_one_blows_up)
+    made = _first_config_faulty(monkeypatch, "nan", at=12)
     with pytest.warns(UnstablePerturbationWarning, match="non-finite") as record:
         data = collect_mujoco_ood_states(cheetah, ENV, 30, action_mode=SAMPLED, seed=0, **SHORT)
     assert made[0].to_json() in str(record[0].message)
     assert len(data) == 30 and np.isfinite(data.states).all()
     assert made[0].to_json() not in data.configs and data.metadata["n_rejected_configs"] == 1
+    assert data.configs == [c.to_json() for c in made[1:]]
+
+
+def test_configuration_whose_episodes_all_end_before_skip_first_is_rejected(cheetah, monkeypatch):
+    """Main protocol: a configuration that ends every episode at once is redrawn, not retried forever."""
+    made = _first_config_faulty(monkeypatch, "end", at=2)
+    monkeypatch.setattr(collect, "MAX_EMPTY_PER_CONFIG", 5)
+    with pytest.warns(UnstablePerturbationWarning, match="5 episodes in a row ended before skip_first=5") as record:
+        data = collect_mujoco_ood_states(cheetah, ENV, action_mode=SAMPLED, seed=0, configs=2, steps_per_config=10,
+                                         **SHORT)
+    assert made[0].to_json() in str(record[0].message)
+    assert len(data) == 20 and data.metadata["n_rejected_configs"] == 1
     assert data.configs == [c.to_json() for c in made[1:]]
 
 

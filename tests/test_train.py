@@ -156,7 +156,7 @@ def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     """kill -9 mid-training, run the same command again: it continues and finishes the budget."""
     out = tmp_path / "ckpt"
     cmd = [sys.executable, "-m", "paper_lib.train", "CartPole-v1", "ensemble", "0", str(out),
-           "--timesteps", "4096", "--resume-every", "256"]
+           "--timesteps", "4096", "--resume-every", "256", "--device", "cpu"]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     state = resume_dir_for(out) / "state.pkl"
     deadline = time.monotonic() + 120
@@ -171,7 +171,7 @@ def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "resuming CartPole-v1 ensemble seed 0 from step" in done.stderr
     config = json.loads((out / "config.json").read_text())
-    assert config["trained_timesteps"] == 4096 and config["resumed_from"] > 0
+    assert config["trained_timesteps"] == 4096 and config["resumed_from"] > 0 and config["device"] == "cpu"
     curve = (out / "training_curve.csv").read_text().splitlines()
     steps = [int(line.split(",")[0]) for line in curve[1:]]
     assert steps == sorted(set(steps)) and steps[-1] == 4096, "one curve, no step counted twice"

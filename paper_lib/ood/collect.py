@@ -15,8 +15,9 @@ Protocol (one loop for ID and OOD, so the two samples are comparable by construc
 
 The agent acts with one ``ActionMode`` (deterministic or sampled; how members combine),
 applied to the policy and recorded in the dataset's metadata. A configuration whose rollout
-goes NaN/inf (or MuJoCo flags it unstable) is reported with a warning, its states are
-discarded and a new configuration is drawn. Seeds: one numpy Generator drives every
+goes NaN/inf (or MuJoCo flags it unstable), or whose episodes end before ``skip_first``
+``MAX_EMPTY_PER_CONFIG`` times in a row (nothing to keep), is reported with a warning, its states are
+discarded and a new configuration is drawn; both count in ``n_rejected_configs``. Seeds: one numpy Generator drives every
 configuration and env seed, and torch's RNG (sampled actions, random members) is seeded in
 a forked RNG state, so the same seed gives the same states without touching global state.
 """
@@ -72,8 +73,12 @@ MAIN_TEXT_PROTOCOL: dict[str, int] = {"configs": 50, "steps_per_config": 100}
 ID_MAIN_PROTOCOL: dict[str, int] = {"episodes": 20, "steps_per_episode": 100}
 #: Give up after this many configurations in a row went unstable (the ranges are too wide).
 MAX_UNSTABLE_IN_A_ROW = 20
-#: Give up after this many episodes in a row ended before ``skip_first`` (nothing to keep).
-MAX_EMPTY_IN_A_ROW = 100
+#: Reject a configuration whose episodes end before ``skip_first`` this many times in a row: the
+#: perturbation ends every episode at once (e.g. Ant flipped by 40x friction), so it yields no states.
+#: (Before this rule, 100 in a row raised; so no dataset collected before it changes.)
+MAX_EMPTY_PER_CONFIG = 100
+#: Give up after this many episodes in a row, over configurations, ended before ``skip_first``.
+MAX_EMPTY_IN_A_ROW = 1000
 _MUJOCO_INSTABILITY = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                        mujoco.mjtWarning.mjWARN_BADQACC)
 
@@ -321,7 +326,7 @@ def _collect(actor: _Actor, next_run: Callable[[], _Run], n_states: int, steps_p
             run = next_run()
             target = min(steps_per_config or math.inf, n_states - len(buffer.states))
             episodes: list[_Episode] = []
-            kept, unstable = 0, None
+            kept, unstable, empty_here = 0, None, 0
             try:
                 _check_obs_space(run.venv, actor.policy)
                 obs = run.venv.reset()
@@ -333,9 +338,13 @@ def _collect(actor: _Actor, next_run: Callable[[], _Run], n_states: int, steps_p
                     episodes.append(episode)
                     kept += len(episode.steps)
                     empty_in_a_row = 0 if episode.steps else empty_in_a_row + 1
+                    empty_here = 0 if episode.steps else empty_here + 1
                     if empty_in_a_row >= MAX_EMPTY_IN_A_ROW:
                         raise RuntimeError(f"{empty_in_a_row} episodes in a row ended before skip_first="
                                            f"{skip_first} steps ({run.describe}): lower skip_first or check the agent.")
+                    if empty_here >= MAX_EMPTY_PER_CONFIG:
+                        unstable = f"{empty_here} episodes in a row ended before skip_first={skip_first} steps"
+                        break
                     if steps_per_config is None:
                         break  # appendix protocol: a new configuration at every restart
                     obs = episode.next_obs if episode.next_obs is not None else run.venv.reset()
