@@ -6,6 +6,11 @@
 #   scripts/device_train.sh status        steps done per run (from its resume points) and the GPU's load
 #   scripts/device_train.sh pack          tar the finished checkpoint folders (15 MiB a tar) under /tmp/dev/tars
 #   scripts/device_train.sh fetch I ...   copy tars I ... into $OUT (the tool brings back 8 files a call)
+# Runs that cannot finish within the session's device time continue here on the CPU instead:
+#   scripts/device_train.sh stop-pack     (device) stop every run, tar its last resume points, split in 15 MiB parts
+#   scripts/device_train.sh fetch-parts A B ...   (device) copy parts A B ... (e.g. aa ab) into $OUT
+#   scripts/device_train.sh unpack DIR    (here) join the parts in DIR into $PAPER_LIB_RESUME_ROOT for this
+#                                         checkout; the same queue lines then resume them on the CPU
 # Checkpoints come back as tars of results/<profile>/checkpoints/...; untar them in the repo root, then
 # land them as usual (scripts/land_run.sh). Their config.json records device and package versions.
 # Exercised so far (session of 2026-11-24, H100 + 16 cores): `start` and `status` (14 Atari runs at once:
@@ -15,7 +20,7 @@
 # masksembles, ...) is made here with `pip download --only-binary :all: --python-version 3.12 -d .whl ...`.
 set -u
 root=/tmp/dev
-cmd=${1:?start|status|pack|fetch}
+cmd=${1:?start|status|pack|fetch|stop-pack|fetch-parts|unpack}
 case $cmd in
 start)
   queue=${2:?queue file}
@@ -71,5 +76,22 @@ fetch)  # fetch I [J ...]: copy those tars into $OUT
   for i in "$@"; do cp "$root/tars/checkpoints_$i.tar" "$OUT/"; done
   ls -la "$OUT"
   ;;
-*) echo "unknown command $cmd: use start, status, pack or fetch" >&2; exit 2 ;;
+stop-pack)  # a kill loses at most the steps since each run's last resume point (RESUME_EVERY)
+  pkill -f "paper_lib.train" ; sleep 3
+  mkdir -p "$root/parts" && rm -f "$root"/parts/resume.tar.*
+  # resume points live under resume/<absolute checkpoint path>: keep paths from results/ on
+  tar -C "$root/resume$root" -cf - results | split -b 15M - "$root/parts/resume.tar."
+  ls -la "$root/parts"
+  ;;
+fetch-parts)
+  shift
+  for p in "$@"; do cp "$root/parts/resume.tar.$p" "$OUT/"; done
+  ls -la "$OUT"
+  ;;
+unpack)  # unpack DIR: the parts fetched into DIR, in name order
+  dir=${2:?folder with resume.tar.* parts}
+  dest=${PAPER_LIB_RESUME_ROOT:?set PAPER_LIB_RESUME_ROOT as for the queue}$(pwd)
+  mkdir -p "$dest" && cat "$dir"/resume.tar.* | tar -C "$dest" -xf - && find "$dest" -name state.pkl
+  ;;
+*) echo "unknown command $cmd: use start, status, pack, fetch, stop-pack, fetch-parts or unpack" >&2; exit 2 ;;
 esac
