@@ -47,23 +47,29 @@ def reward_claim(vs_baseline: pd.DataFrame) -> list[dict[str, str]]:
 def auroc_claim(metrics: pd.DataFrame) -> list[dict[str, str]]:
     """Per env, on perturbed states: is the worse of Masksembles/Ensemble above the better of the MC methods?
 
-    Checked for value_std and policy_std separately: holds if for both, does not hold if for neither, mixed otherwise.
+    Checked for value_std and policy_std separately, on the cells' 95% CIs (cluster bootstrap, pooled over
+    seeds): ahead if the worse cell's CI lies above the better MC cell's CI, behind if below, tied if they
+    overlap. Holds if ahead for both measures, mixed if for one, does not hold if for neither.
     """
     perturbed = metrics[(metrics.ood_set == "perturbed") & metrics.measure.isin(SPREAD_MEASURES)]
-    means = perturbed.groupby(["env", "measure", "method"])["auroc"].mean()
+    cells = perturbed.groupby(["env", "measure", "method"])[["auroc", "auroc_ci_low", "auroc_ci_high"]].mean()
     rows = []
     for env_id in pd.unique(perturbed.env):
         wins, parts = [], []
         for measure in SPREAD_MEASURES:
-            cell = means.get((env_id, measure))
-            if cell is None:
+            if (env_id, measure) not in cells.index.droplevel("method"):
                 continue
-            ahead = cell.reindex(["masksembles", "ensemble"]).dropna()
-            behind = cell.reindex(["mc_dropout", "mc_dropconnect"]).dropna()
+            cell = cells.loc[(env_id, measure)]
+            ahead = cell.reindex(["masksembles", "ensemble"]).dropna(subset=["auroc"])
+            behind = cell.reindex(["mc_dropout", "mc_dropconnect"]).dropna(subset=["auroc"])
             if ahead.empty or behind.empty:
                 continue
-            wins.append(ahead.min() > behind.max())
-            parts.append(f"{measure}: " + ", ".join(f"{m} {v:.2f}" for m, v in pd.concat([ahead, behind]).items()))
+            worse, better = ahead.loc[ahead.auroc.idxmin()], behind.loc[behind.auroc.idxmax()]
+            order = ("ahead" if worse.auroc_ci_low > better.auroc_ci_high else
+                     "behind" if worse.auroc_ci_high < better.auroc_ci_low else "tied")
+            wins.append(order == "ahead")
+            parts.append(f"{measure} ({order}): " + ", ".join(f"{m} {v:.2f}" for m, v in
+                                                             pd.concat([ahead.auroc, behind.auroc]).items()))
         verdict = UNTESTED if not wins else HOLDS if all(wins) else FAILS if not any(wins) else MIXED
         rows.append(_row("auroc_order", env_id, verdict, "; ".join(parts) or "needs a run of each group"))
     return rows

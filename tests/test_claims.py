@@ -14,8 +14,10 @@ def _vs_baseline(sampled_ci_high: float) -> pd.DataFrame:
                           "deterministic ci_low": 1.0, "deterministic ci_high": 9.0, "n_seeds": 1}])
 
 
-def _metrics(aurocs: dict[tuple[str, str], float]) -> pd.DataFrame:
-    return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "method": m, "measure": s, "auroc": a}
+def _metrics(aurocs: dict[tuple[str, str], float], half_width: float = 0.04) -> pd.DataFrame:
+    """ood_metrics rows with a 95% CI of +- ``half_width`` around each AUROC."""
+    return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "method": m, "measure": s, "auroc": a,
+                          "auroc_ci_low": a - half_width, "auroc_ci_high": a + half_width}
                          for (m, s), a in aurocs.items()])
 
 
@@ -40,7 +42,7 @@ def test_each_rule_on_a_case_known_by_hand():
     verdicts = _verdicts(paper_claims(_vs_baseline(5.0), _metrics(ORDERED), _versus([(0.01, 0.05), (-0.01, 0.02)]),
                                       spawn))
     assert verdicts == {"masksembles_reward": HOLDS,  # the CI reaches above 0
-                        "auroc_order": MIXED,  # value std: 0.8 > 0.6; policy std: 0.5 < 0.6
+                        "auroc_order": MIXED,  # value std: 0.8 > 0.6, CIs apart; policy std: 0.5 < 0.6
                         "levitation": HOLDS,  # 2 of 3 methods on both counts
                         "js_like_std": HOLDS,  # the same order of the three methods
                         "members_vs_detectors": HOLDS}  # one cell above, none below
@@ -54,3 +56,15 @@ def test_the_opposite_cases_and_what_cannot_be_tested_yet():
     no_mc = {k: v for k, v in ORDERED.items() if k[0] != "mc_dropout"}
     verdicts = _verdicts(paper_claims(_vs_baseline(5.0), _metrics(no_mc), _versus([(0.0, 0.1)]), None))
     assert verdicts["auroc_order"] == UNTESTED and verdicts["js_like_std"] == UNTESTED  # 2 cells only
+
+
+def test_auroc_order_needs_the_confidence_intervals_apart():
+    """Ant at 1e6: 0.51 vs 0.51 is a tie, not a win; wider CIs turn the ordered case into ties."""
+    ant_like = {("masksembles", "value_std"): 0.512, ("mc_dropout", "value_std"): 0.509,
+                ("masksembles", "policy_std"): 0.503, ("mc_dropout", "policy_std"): 0.494}
+    verdicts = _verdicts(paper_claims(_vs_baseline(5.0), _metrics(ant_like, 0.03), _versus([(0.0, 0.1)]), None))
+    assert verdicts["auroc_order"] == FAILS
+    verdicts = _verdicts(paper_claims(_vs_baseline(5.0), _metrics(ORDERED, 0.15), _versus([(0.0, 0.1)]), None))
+    assert verdicts["auroc_order"] == FAILS  # 0.8 vs 0.6 with +-0.15: the intervals overlap
+    verdicts = _verdicts(paper_claims(_vs_baseline(5.0), _metrics(ORDERED, 0.01), _versus([(0.0, 0.1)]), None))
+    assert verdicts["auroc_order"] == MIXED  # apart for value std; policy std behind
