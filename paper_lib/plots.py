@@ -32,6 +32,18 @@ def _new_figure(n_panels: int = 1, sharey: bool = True, legend_width: float = 0.
     return fig, list(axes)
 
 
+def _grid_figure(n_panels: int, max_columns: int) -> tuple[Figure, list]:
+    """Panels in rows of at most ``max_columns`` (unused cells hidden), so 8 envs stay readable."""
+    n_columns = max(1, min(n_panels, max_columns))
+    n_rows = -(-n_panels // n_columns)
+    fig = Figure(figsize=(PANEL_SIZE[0] * n_columns, PANEL_SIZE[1] * n_rows), layout="constrained")
+    FigureCanvasAgg(fig)
+    grid = fig.subplots(n_rows, n_columns, squeeze=False).ravel()
+    for ax in grid[n_panels:]:
+        fig.delaxes(ax)
+    return fig, list(grid[:n_panels])
+
+
 def _keep_last_legend(axes: list, outside: bool = False) -> None:
     """Panels share hue/style, so one legend (on the last panel) is enough; ``outside`` keeps it off the data."""
     for ax in axes[:-1]:
@@ -151,15 +163,16 @@ def uncertainty_from_spawn(df: pd.DataFrame, spawn_steps: int) -> Figure:
     return fig
 
 
-def training_curves(df: pd.DataFrame) -> Figure:
+def training_curves(df: pd.DataFrame, max_columns: int = 4) -> Figure:
     """Episode reward over training, one panel per env: mean over seeds with a ±1 std band.
 
     Expects columns timesteps, reward, method, env, seed; seeds should log at the
-    same timesteps (bin them first otherwise) so the mean is taken over seeds.
+    same timesteps (bin them first otherwise) so the mean is taken over seeds. Panels wrap
+    after ``max_columns``, so the four MuJoCo envs and the four games make two rows as in the paper.
     """
     require_columns(df, ["timesteps", "reward", "method", "env", "seed"], "training_curves")
     envs = list(pd.unique(df["env"]))
-    fig, axes = _new_figure(len(envs), sharey=False)  # reward scales differ per env
+    fig, axes = _grid_figure(len(envs), max_columns)  # no shared y: reward scales differ per env
     for ax, env in zip(axes, envs):
         sns.lineplot(data=df[df["env"] == env], x="timesteps", y="reward", hue="method", errorbar="sd", ax=ax,
                      hue_order=list(pd.unique(df["method"])))

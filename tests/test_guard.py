@@ -38,7 +38,7 @@ from paper_lib.guard import (
     conformal_threshold,
     make_score,
 )
-from paper_lib.guard.conformal import false_alarm_bound, min_calibration_size
+from paper_lib.guard.conformal import conformal_rank, false_alarm_bound, min_calibration_size
 from paper_lib.guard.experiment import Plan, run_episode
 from paper_lib.guard.settings import load_settings, parse_settings
 from paper_lib.ood.collect import ActionMode
@@ -119,6 +119,30 @@ def test_false_alarm_rate_stays_within_the_bound_over_200_splits_of_exchangeable
     mean, se = np.mean(rates), np.std(rates) / math.sqrt(len(rates))
     assert mean <= alpha + 3 * se
     assert mean >= false_alarm_bound(n, alpha) - 4 * se  # tight, not vacuous: (n + 1 - k) / (n + 1) = 0.1
+
+
+def test_confidence_bounds_each_guards_own_rate_not_only_the_average():
+    """Exponential(1) scores, so a threshold q's true false-alarm rate is exp(-q). Over 400 calibration sets,
+    the marginal guard's own rate exceeds alpha in about half of them; with confidence 0.9 in at most ~10%."""
+    rng = np.random.default_rng(4)
+    model, score, alpha, n = _cartpole_model(), CallableScore(lambda s: s[:, 0], "x"), 0.1, 60
+    marginal, confident = [], []
+    for _ in range(400):
+        calibration = rng.exponential(size=n)
+        marginal.append(np.exp(-Guard.from_scores(model, score, calibration, alpha).threshold))
+        guard = Guard.from_scores(model, score, calibration, alpha, confidence=0.9)
+        confident.append(np.exp(-guard.threshold))
+    assert np.mean(np.array(marginal) > alpha) > 0.3  # the average bound says nothing about one guard
+    assert np.mean(np.array(confident) > alpha) <= 0.1 + 3 * math.sqrt(0.09 / 400)
+    assert np.mean(confident) == pytest.approx(guard.expected_false_alarm_rate, abs=0.01)  # (n + 1 - k) / (n + 1)
+    assert "with probability >= 0.9" in guard.guarantee() and "confidence=0.9" in repr(guard)
+    # the rank: smallest k with P(Beta(n+1-k, k) > alpha) <= 0.1; at n = 45 only the largest score (0.95^45 < 0.1)
+    assert conformal_rank(45, 0.05, 0.9) == 45 and min_calibration_size(0.05, 0.9) == 45
+    assert conformal_rank(100, 0.05, 0.9) == 99 and conformal_rank(100, 0.05) == 96
+    with pytest.raises(ValueError, match=r"alpha=0.05 at confidence=0.9 needs at least 45 calibration states"):
+        Guard.from_scores(model, score, np.arange(44.0), 0.05, confidence=0.9)
+    with pytest.raises(ValueError, match=r"confidence=1.5: give the probability"):
+        Guard.from_scores(model, score, np.arange(44.0), 0.05, confidence=1.5)
 
 
 @pytest.mark.parametrize("score_name", ["value_std", "mahalanobis_obs"])
@@ -338,7 +362,7 @@ def test_save_and_load_round_trip_with_the_models_folder(tiny_models, id_episode
     fit = np.concatenate(id_episodes[:6])
     window = SequentialGuard(model, make_score(model, "knn_features", fit_states=fit), id_episodes[6:16], 0.1,
                              WindowMean(4))
-    state = Guard(model, "value_std", np.stack([e[7] for e in id_episodes[6:]]), 0.1)
+    state = Guard(model, "value_std", np.stack([e[7] for e in id_episodes[6:]]), 0.1, confidence=0.8)
     combined_score = CombinedScore([make_score(model, "value_std"), make_score(model, "mahalanobis_obs", fit_states=fit)],
                                    reference_states=np.concatenate(id_episodes[20:22]))
     combined = SequentialGuard(model, combined_score, id_episodes[6:16], 0.1, Cusum(0.5))
@@ -347,8 +371,8 @@ def test_save_and_load_round_trip_with_the_models_folder(tiny_models, id_episode
         assert path.parent == tmp_path / "guards" and (path / "guard.json").is_file()
         loaded = Guard.load(tmp_path, PPO.load(ckpt.folder / "model.zip", device="cpu"), key=path.name)
         assert type(loaded) is type(guard)
-        assert (loaded.threshold, loaded.alpha, loaded.score.name, loaded.statistic) == \
-               (guard.threshold, guard.alpha, guard.score.name, guard.statistic)
+        assert (loaded.threshold, loaded.alpha, loaded.confidence, loaded.score.name, loaded.statistic) == \
+               (guard.threshold, guard.alpha, guard.confidence, guard.score.name, guard.statistic)
         np.testing.assert_array_equal(loaded.calibration_scores, guard.calibration_scores)
         np.testing.assert_array_equal(loaded.score(id_episodes[23]), guard.score(id_episodes[23]))
         meta = json.loads((path / "guard.json").read_text())
@@ -441,6 +465,13 @@ def test_bad_guard_settings_are_one_clear_error():
         parse_settings({**good, "budgets": {"tiny": {**good["budgets"]["tiny"], "alpha": 0.05}}}, "tiny", "guard")
     with pytest.raises(ValueError, match="unknown key"):
         parse_settings({**good, "alpah": 0.1}, "tiny", "guard")
+    confident = {**good, "confidence": 0.9}
+    with pytest.raises(ValueError, match=r"alpha=0.2 at confidence=0.9 needs calibration_episodes >= 11"):
+        parse_settings(confident, "tiny", "guard")
+    more = {**confident, "budgets": {"tiny": {**good["budgets"]["tiny"], "calibration_episodes": 11}}}
+    assert parse_settings(more, "tiny", "guard").confidence == 0.9 and parse_settings(good, "tiny", "guard").confidence is None
+    with pytest.raises(ValueError, match="confidence=2"):
+        parse_settings({**more, "confidence": 2}, "tiny", "guard")
     with pytest.raises(ValueError, match="change_steps"):
         parse_settings({**good, "budgets": {"tiny": {**good["budgets"]["tiny"], "change_steps": [5, 40]}}},
                        "tiny", "guard")
@@ -533,3 +564,23 @@ print(' '.join(sorted(m for m in sys.modules if m.startswith('paper_lib'))))
     from paper_lib.guard.cache import SOURCE_MODULES
 
     assert set(done.stdout.split()) <= set(SOURCE_MODULES), set(done.stdout.split()) - set(SOURCE_MODULES)
+
+
+def test_detection_table_reports_the_rate_each_guard_bounds():
+    """State guard: a random state of a random episode (episode-weighted), not steps pooled; window: episodes."""
+    from paper_lib.guard.report import detection_table
+
+    base = {"env": "Walker2d-v5", "method": "masksembles", "score": "value_std", "alpha": 0.05, "n_calibration": 100,
+            "confidence": 0.9, "episode_kind": "id", "delay": np.nan, "alarm_before_change": False,
+            "reached_change": False}
+    episodes = pd.DataFrame([
+        {**base, "guard": "state", "steps": 100, "flagged_steps": 10, "any_alarm": True},
+        {**base, "guard": "state", "steps": 10, "flagged_steps": 5, "any_alarm": True},  # a short episode (a fall)
+        {**base, "guard": "window", "steps": 100, "flagged_steps": 3, "any_alarm": True},
+        {**base, "guard": "window", "steps": 10, "flagged_steps": 0, "any_alarm": False},
+    ])
+    table = detection_table(episodes, ["masksembles"]).set_index("guard")
+    assert table.loc["state", "id_false_alarm_rate"] == pytest.approx((0.1 + 0.5) / 2)
+    assert table.loc["state", "id_alarms_per_1000_steps"] == pytest.approx(1000 * 15 / 110)
+    assert table.loc["window", "id_false_alarm_rate"] == pytest.approx(0.5)
+    assert table.loc["state", "expected_rate"] == pytest.approx(2 / 101)  # k = 99 of n = 100 at confidence 0.9

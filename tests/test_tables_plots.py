@@ -289,3 +289,13 @@ def test_protocol_note_describes_the_states_as_collected():
                     "appendix G protocol with sampled actions, vote inference for 1 run: 2000 OOD states from 5 "
                     "configurations and 1000 held-out ID states from 10 episodes per run")
     assert protocol_note(pd.DataFrame(rows).drop(columns="protocol")) == "collection protocol not recorded"
+
+
+def test_training_curves_wrap_into_rows_of_four():
+    envs = [f"env{i}" for i in range(6)]
+    df = pd.DataFrame({"timesteps": np.tile([0, 100], 6), "reward": np.arange(12.0), "method": "ms", "seed": 0,
+                       "env": np.repeat(envs, 2)})
+    fig = plots.training_curves(df)
+    assert [ax.get_title() for ax in fig.axes] == envs  # two unused cells of the 2 x 4 grid are removed
+    rows = sorted({round(ax.get_position().y0, 3) for ax in fig.axes})
+    assert len(rows) == 2 and sum(ax.get_position().y0 > rows[0] for ax in fig.axes) == 4

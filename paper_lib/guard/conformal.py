@@ -14,6 +14,13 @@ For a sequence of states the unit is a whole episode: a sequential statistic (th
 last w scores, or a CUSUM) is computed along the episode, and its maximum over the episode is
 one calibration score. Then "this ID episode raises at least one alarm" has probability at
 most alpha, for episodes exchangeable with the calibration episodes.
+
+That bound is marginal: for one calibration set the realized false-alarm rate is random,
+Beta(n+1-k, k) for continuous scores, and a deployed guard has just one. With ``confidence``
+(1 - delta) the rank k is raised to the smallest k with P(Beta(n+1-k, k) > alpha) <= delta
+(Vovk 2012, "training-conditional" validity): with probability >= 1 - delta over the calibration
+set, this guard's own false-alarm rate is <= alpha. It needs n >= log(delta) / log(1 - alpha)
+calibration units (45 for alpha = 0.05, delta = 0.1).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.stats import beta as beta_distribution
 
 #: Rounding slack for ceil((n+1)(1-alpha)): (n+1)(1-alpha) is often an integer up to float error.
 _EPS = 1e-9
@@ -35,46 +43,74 @@ def check_alpha(alpha: float) -> float:
     return float(alpha)
 
 
-def min_calibration_size(alpha: float) -> int:
-    """The fewest calibration units for which the conformal threshold is finite: n >= 1/alpha - 1."""
-    alpha = check_alpha(alpha)
-    return max(1, math.ceil(1.0 / alpha - 1.0 - _EPS))
+def check_confidence(confidence: float | None) -> float | None:
+    """None (the marginal guarantee) or a probability strictly between 0 and 1, e.g. 0.9."""
+    if confidence is None:
+        return None
+    if isinstance(confidence, bool) or not isinstance(confidence, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(float(confidence)) or not 0.0 < float(confidence) < 1.0:
+        raise ValueError(f"confidence={confidence!r}: give the probability (strictly between 0 and 1, e.g. 0.9) that "
+                         "the guard's own false-alarm rate stays <= alpha, or None for the marginal guarantee.")
+    return float(confidence)
 
 
-def conformal_rank(n: int, alpha: float) -> int:
-    """k = ceil((n+1)(1-alpha)): the threshold is the k-th smallest of n calibration scores (1-based)."""
-    return math.ceil((n + 1) * (1.0 - check_alpha(alpha)) - _EPS)
+def min_calibration_size(alpha: float, confidence: float | None = None) -> int:
+    """The fewest calibration units for a finite threshold: n >= 1/alpha - 1, or with ``confidence``
+    n >= log(1 - confidence) / log(1 - alpha) (the largest score as threshold then meets it)."""
+    alpha, confidence = check_alpha(alpha), check_confidence(confidence)
+    if confidence is None:
+        return max(1, math.ceil(1.0 / alpha - 1.0 - _EPS))
+    return max(1, math.ceil(math.log(1.0 - confidence) / math.log(1.0 - alpha) - _EPS))
 
 
-def check_calibration_size(n: int, alpha: float, unit: str = "calibration states") -> int:
-    """n calibration units give a finite threshold for alpha only if n >= 1/alpha - 1; else one ValueError."""
-    need = min_calibration_size(alpha)
+def conformal_rank(n: int, alpha: float, confidence: float | None = None) -> int:
+    """The threshold is the k-th smallest of n calibration scores (1-based): k = ceil((n+1)(1-alpha)), or
+    with ``confidence`` the smallest k whose realized rate Beta(n+1-k, k) exceeds alpha with probability
+    <= 1 - confidence (n + 1 when no k <= n does: too few units)."""
+    alpha, confidence = check_alpha(alpha), check_confidence(confidence)
+    if confidence is None:
+        return math.ceil((n + 1) * (1.0 - alpha) - _EPS)
+    ks = np.arange(1, n + 1)
+    exceeds = beta_distribution.sf(alpha, n + 1 - ks, ks)  # P(realized false-alarm rate > alpha), falling in k
+    ok = np.flatnonzero(exceeds <= 1.0 - confidence + _EPS)
+    return int(ks[ok[0]]) if ok.size else n + 1
+
+
+def check_calibration_size(n: int, alpha: float, unit: str = "calibration states",
+                           confidence: float | None = None) -> int:
+    """n calibration units give a finite threshold only if n >= min_calibration_size; else one ValueError."""
+    need = min_calibration_size(alpha, confidence)
     if n < need:
-        raise ValueError(f"alpha={alpha:g} needs at least {need} {unit} (n >= 1/alpha - 1), got {n}: the threshold "
-                         f"would be infinite. Pass at least {need} held-out {unit}, or raise alpha to at least "
-                         f"{1.0 / (n + 1):.4g} (= 1/(n+1)).")
+        if confidence is None:
+            raise ValueError(f"alpha={alpha:g} needs at least {need} {unit} (n >= 1/alpha - 1), got {n}: the threshold "
+                             f"would be infinite. Pass at least {need} held-out {unit}, or raise alpha to at least "
+                             f"{1.0 / (n + 1):.4g} (= 1/(n+1)).")
+        raise ValueError(f"alpha={alpha:g} at confidence={confidence:g} needs at least {need} {unit} "
+                         f"(n >= log(1 - confidence) / log(1 - alpha)), got {n}. Pass at least {need} held-out {unit}, "
+                         "lower the confidence, or use confidence=None for the marginal guarantee.")
     return n
 
 
-def conformal_threshold(calibration_scores: np.ndarray, alpha: float, unit: str = "calibration states") -> float:
-    """The k-th smallest calibration score, k = ceil((n+1)(1-alpha)); a test score above it is flagged.
+def conformal_threshold(calibration_scores: np.ndarray, alpha: float, unit: str = "calibration states",
+                        confidence: float | None = None) -> float:
+    """The k-th smallest calibration score (k from ``conformal_rank``); a test score above it is flagged.
 
     Raises one ValueError naming the fix when the scores are not finite or too few for alpha.
     ``unit`` names what one score stands for (states, episodes) in that message.
     """
-    alpha = check_alpha(alpha)
+    alpha, confidence = check_alpha(alpha), check_confidence(confidence)
     scores = np.asarray(calibration_scores, dtype=float).reshape(-1)
     if scores.size and np.isnan(scores).any():
         raise ValueError(f"the calibration scores hold NaN ({int(np.isnan(scores).sum())} of {scores.size}); "
                          f"drop those {unit} or fix the score function.")
-    n = check_calibration_size(scores.size, alpha, unit)
-    k = conformal_rank(n, alpha)
+    n = check_calibration_size(scores.size, alpha, unit, confidence)
+    k = conformal_rank(n, alpha, confidence)
     return float(np.partition(scores, k - 1)[k - 1])
 
 
-def false_alarm_bound(n: int, alpha: float) -> float:
+def false_alarm_bound(n: int, alpha: float, confidence: float | None = None) -> float:
     """The exact expected false-alarm rate of the threshold for continuous scores: (n + 1 - k) / (n + 1) <= alpha."""
-    k = conformal_rank(n, alpha)
+    k = conformal_rank(n, alpha, confidence)
     return (n + 1 - k) / (n + 1)
 
 

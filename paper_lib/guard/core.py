@@ -15,7 +15,8 @@ probability that an ID episode raises any alarm is at most alpha; the unit is th
 
 Both bounds are marginal: on average over the draw of the calibration set. For one calibration set
 the realized rate is itself random (Beta(n+1-k, k) for continuous scores, k = ceil((n+1)(1-alpha))),
-so a small n scatters widely around alpha. Neither guarantee says anything about OOD states
+so a small n scatters widely around alpha. ``confidence=0.9`` raises k so that, with probability
+>= 0.9 over the calibration set, this guard's own rate is <= alpha (needs more units: 45 for alpha 0.05). Neither guarantee says anything about OOD states
 (detection power is measured, not promised), nor survives calibrating on states the score was
 fitted on (refused here) or deploying with a different action mode, episode length or observation
 normalization than in calibration.
@@ -39,6 +40,7 @@ from stable_baselines3.common.policies import BasePolicy
 from paper_lib.guard.conformal import (
     check_alpha,
     check_calibration_size,
+    check_confidence,
     check_episodes,
     conformal_threshold,
     episode_maximum,
@@ -157,28 +159,29 @@ class Guard:
     unit = "state"
 
     def __init__(self, model: BaseAlgorithm | BasePolicy, score: Score | str, calibration_states: np.ndarray,
-                 alpha: float) -> None:
-        self._setup(model, score, alpha, None)
+                 alpha: float, confidence: float | None = None) -> None:
+        self._setup(model, score, alpha, None, confidence)
         states = as_states(calibration_states, "calibration_states")
-        check_calibration_size(len(states), self.alpha, "calibration states")
+        check_calibration_size(len(states), self.alpha, "calibration states", self.confidence)
         self._check_held_out(states)
         self._calibrate(self.score(states))
 
     @classmethod
     def from_scores(cls, model: BaseAlgorithm | BasePolicy, score: Score | str, calibration_scores: np.ndarray,
-                    alpha: float) -> Guard:
+                    alpha: float, confidence: float | None = None) -> Guard:
         """A guard from scores already computed with ``score`` on held-out ID states (one per unit)."""
         guard = cls.__new__(cls)
-        guard._setup(model, score, alpha, None)
+        guard._setup(model, score, alpha, None, confidence)
         guard._calibrate(calibration_scores)
         return guard
 
     # --- construction -------------------------------------------------------------------
     def _setup(self, model: BaseAlgorithm | BasePolicy, score: Score | str, alpha: float,
-               statistic: Statistic | None) -> None:
+               statistic: Statistic | None, confidence: float | None = None) -> None:
         self.model = model
         policy_of(model)  # a clear error for anything that is not an SB3 model or policy
         self.alpha = check_alpha(alpha)
+        self.confidence = check_confidence(confidence)
         if isinstance(score, str):
             score = make_score(model, score)
         if not isinstance(score, Score):
@@ -200,7 +203,7 @@ class Guard:
 
     def _calibrate(self, calibration_scores: np.ndarray) -> None:
         scores = np.asarray(calibration_scores, dtype=float).reshape(-1)
-        self.threshold = conformal_threshold(scores, self.alpha, f"calibration {self.unit}s")
+        self.threshold = conformal_threshold(scores, self.alpha, f"calibration {self.unit}s", self.confidence)
         self.calibration_scores = scores
 
     # --- use ----------------------------------------------------------------------------
@@ -210,8 +213,8 @@ class Guard:
 
     @property
     def expected_false_alarm_rate(self) -> float:
-        """(n + 1 - k) / (n + 1): the guaranteed bound's exact value for tie-free scores (<= alpha)."""
-        return false_alarm_bound(self.n_calibration, self.alpha)
+        """(n + 1 - k) / (n + 1): the false-alarm rate expected over calibration sets, for tie-free scores (<= alpha)."""
+        return false_alarm_bound(self.n_calibration, self.alpha, self.confidence)
 
     @property
     def name(self) -> str:
@@ -239,19 +242,27 @@ class Guard:
     def monitor(self, n_envs: int = 1) -> GuardMonitor:
         return GuardMonitor(self, n_envs)
 
+    def _certainty(self) -> str:
+        """How the bound holds: on average over calibration sets, or for this set with a stated probability."""
+        if self.confidence is None:
+            return ""
+        return f", for this calibration set with probability >= {self.confidence:g}"
+
     def guarantee(self) -> str:
         return (f"P(an ID state is flagged) <= alpha = {self.alpha:g} for states exchangeable with the {self.n_calibration} "
-                "calibration states")
+                f"calibration states{self._certainty()}")
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(score={self.score.name!r}, alpha={self.alpha:g}, n={self.n_calibration}, "
+        return (f"{type(self).__name__}(score={self.score.name!r}, alpha={self.alpha:g}, "
+                + (f"confidence={self.confidence:g}, " if self.confidence is not None else "") + f"n={self.n_calibration}, "
                 f"threshold={self.threshold:.6g}" + (f", {self.statistic}" if self.statistic is not None else "") + ")")
 
     # --- persistence --------------------------------------------------------------------
     def save(self, folder: str | Path) -> Path:
         """Write ``folder/guards/<key>/`` (guard.json + arrays.npz) in one atomic swap; returns that path."""
         target = Path(folder) / GUARDS_DIR / self.key
-        meta = {"format": FORMAT, "unit": self.unit, "alpha": self.alpha, "threshold": self.threshold,
+        meta = {"format": FORMAT, "unit": self.unit, "alpha": self.alpha, "confidence": self.confidence,
+                "threshold": self.threshold,
                 "n_calibration": self.n_calibration, "score": self.score.spec(),
                 "statistic": self.statistic.to_dict() if self.statistic is not None else None,
                 "model": model_identity(self.model), "normalize_obs": needs_normalization(self.model),
@@ -300,7 +311,7 @@ class Guard:
             model, meta["score"], {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)})
         cls = SequentialGuard if meta["unit"] == "episode" else Guard
         guard = cls.__new__(cls)
-        guard._setup(model, rebuilt, meta["alpha"], statistic_from_dict(meta["statistic"]))
+        guard._setup(model, rebuilt, meta["alpha"], statistic_from_dict(meta["statistic"]), meta.get("confidence"))
         guard._calibrate(arrays["calibration_scores"])
         if guard.threshold != meta["threshold"]:
             raise ValueError(f"{path}: the saved threshold {meta['threshold']} does not follow from the saved calibration "
@@ -324,30 +335,31 @@ class SequentialGuard(Guard):
     unit = "episode"
 
     def __init__(self, model: BaseAlgorithm | BasePolicy, score: Score | str, calibration_episodes: list[np.ndarray],
-                 alpha: float, statistic: Statistic = DEFAULT_STATISTIC) -> None:
-        self._setup(model, score, alpha, _check_statistic(statistic))
+                 alpha: float, statistic: Statistic = DEFAULT_STATISTIC, confidence: float | None = None) -> None:
+        self._setup(model, score, alpha, _check_statistic(statistic), confidence)
         if isinstance(calibration_episodes, np.ndarray) and calibration_episodes.ndim >= 2 and \
                 calibration_episodes.dtype != object:
             raise ValueError("calibration_episodes must be a list with one (T_i, *obs_shape) array per whole episode, "
                              "not one array of states.")
         episodes = [as_states(e, f"calibration episode {i}") for i, e in enumerate(calibration_episodes)]
-        check_calibration_size(len(episodes), self.alpha, "calibration episodes")
+        check_calibration_size(len(episodes), self.alpha, "calibration episodes", self.confidence)
         self._check_held_out(np.concatenate(episodes))
         self._calibrate_episodes([self.score(e) for e in episodes])
 
     @classmethod
     def from_episode_scores(cls, model: BaseAlgorithm | BasePolicy, score: Score | str,
                             episode_scores: list[np.ndarray], alpha: float,
-                            statistic: Statistic = DEFAULT_STATISTIC) -> SequentialGuard:
+                            statistic: Statistic = DEFAULT_STATISTIC,
+                            confidence: float | None = None) -> SequentialGuard:
         """A guard from per-step scores already computed with ``score`` on whole held-out ID episodes."""
         guard = cls.__new__(cls)
-        guard._setup(model, score, alpha, _check_statistic(statistic))
+        guard._setup(model, score, alpha, _check_statistic(statistic), confidence)
         guard._calibrate_episodes(episode_scores)
         return guard
 
     def _calibrate_episodes(self, episode_scores: list[np.ndarray]) -> None:
         episodes = check_episodes(episode_scores)
-        check_calibration_size(len(episodes), self.alpha, "calibration episodes")
+        check_calibration_size(len(episodes), self.alpha, "calibration episodes", self.confidence)
         self._calibrate(np.array([episode_maximum(self.statistic.path(e)) for e in episodes]))
 
     def statistic_path(self, scores: np.ndarray) -> np.ndarray:
@@ -355,7 +367,7 @@ class SequentialGuard(Guard):
 
     def guarantee(self) -> str:
         return (f"P(an ID episode raises any alarm) <= alpha = {self.alpha:g} for episodes exchangeable with the "
-                f"{self.n_calibration} calibration episodes ({self.statistic.label} statistic)")
+                f"{self.n_calibration} calibration episodes ({self.statistic.label} statistic){self._certainty()}")
 
 
 def _check_statistic(statistic: Any) -> Statistic:

@@ -184,12 +184,14 @@ def build_guards(model: Any, scores: dict[str, Score], calibration: dict[str, li
     for name, score in scores.items():
         per_episode = calibration[name]
         assert len(per_episode) == n
-        guards[name, "state"] = Guard.from_scores(model, score, [e[t] for e, t in zip(per_episode, steps)],
-                                                  settings.alpha)
-        guards[name, "window"] = SequentialGuard.from_episode_scores(model, score, per_episode, settings.alpha,
-                                                                     WindowMean(settings.window))
+        alpha, confidence = settings.alpha, settings.confidence
+        guards[name, "state"] = Guard.from_scores(model, score, [e[t] for e, t in zip(per_episode, steps)], alpha,
+                                                  confidence)
+        guards[name, "window"] = SequentialGuard.from_episode_scores(model, score, per_episode, alpha,
+                                                                     WindowMean(settings.window), confidence)
         guards[name, "cusum"] = SequentialGuard.from_episode_scores(
-            model, score, per_episode, settings.alpha, Cusum.from_reference(reference[name], settings.cusum_quantile))
+            model, score, per_episode, alpha, Cusum.from_reference(reference[name], settings.cusum_quantile),
+            confidence)
     return guards
 
 
@@ -201,7 +203,8 @@ def evaluate_guards(guards: dict[tuple[str, str], Guard], streams: dict[str, lis
         for episode, scores in zip(episodes, streams[name]):
             flags = guard.alarms(scores)
             plan = episode.plan
-            row = {"score": name, "guard": kind, "alpha": guard.alpha, "n_calibration": guard.n_calibration,
+            row = {"score": name, "guard": kind, "alpha": guard.alpha, "confidence": guard.confidence,
+                   "n_calibration": guard.n_calibration,
                    "threshold": guard.threshold, "episode_kind": "perturbed" if plan.config else "id",
                    "episode": plan.index, "steps": len(flags), "flagged_steps": int(flags.sum()),
                    "any_alarm": bool(flags.any()), "change_step": plan.change_step, "delay": np.nan,

@@ -9,6 +9,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from paper_lib.frames import require_columns
+from paper_lib.guard.conformal import false_alarm_bound
 
 KEYS = ["env", "method", "score", "guard"]
 GUARD_ORDER = ["state", "window", "cusum"]
@@ -25,9 +26,12 @@ def _ordered(df: pd.DataFrame, methods: list[str]) -> pd.DataFrame:
 def detection_table(episodes: pd.DataFrame, methods: list[str]) -> pd.DataFrame:
     """Per env, method, score and guard: false alarms on ID episodes and detection of the changes.
 
-    - ``id_alarms_per_1000_steps``: flagged ID steps per 1000 (the state guard's bound: 1000 alpha);
-    - ``id_episodes_with_alarm``: share of ID test episodes with any alarm (the sequential guards'
-      bound: alpha);
+    - ``id_alarms_per_1000_steps``: flagged ID steps per 1000 (pooled over steps, so long episodes weigh more);
+    - ``id_episodes_with_alarm``: share of ID test episodes with any alarm;
+    - ``id_false_alarm_rate``: what the guard bounds by alpha: for the state guard the chance that a state at a
+      uniformly random step of a random ID episode is flagged (mean over episodes of the flagged share, as the
+      calibration states were drawn), for the window and CUSUM guards ``id_episodes_with_alarm``;
+    - ``expected_rate``: that rate's expectation over calibration sets, (n + 1 - k) / (n + 1);
     - ``detected``: share of perturbed episodes with an alarm after the change;
     - ``median_delay``: median steps from the change to the first alarm, over detected episodes;
     - ``alarm_before_change``: share of perturbed episodes flagged at or before the change.
@@ -37,15 +41,23 @@ def detection_table(episodes: pd.DataFrame, methods: list[str]) -> pd.DataFrame:
     require_columns(episodes, KEYS + ["episode_kind", "steps", "flagged_steps", "any_alarm", "delay",
                                       "alarm_before_change", "reached_change", "alpha", "n_calibration"],
                     "detection_table")
+    confidence = episodes["confidence"] if "confidence" in episodes else pd.Series(np.nan, index=episodes.index)
+    episodes = episodes.assign(confidence=confidence.astype(float))
     rows = []
     for key, group in episodes.groupby(KEYS, sort=False):
         ident = group[group.episode_kind == "id"]
         pert = group[(group.episode_kind == "perturbed") & group.reached_change.astype(bool)]
         delays = pert["delay"].dropna()
-        rows.append(dict(zip(KEYS, key), alpha=group["alpha"].iloc[0], n_calibration=int(group["n_calibration"].iloc[0]),
+        alpha, n = float(group["alpha"].iloc[0]), int(group["n_calibration"].iloc[0])
+        confidence = float(group["confidence"].iloc[0])
+        with_alarm = ident["any_alarm"].mean() if len(ident) else np.nan
+        state_rate = (ident["flagged_steps"] / ident["steps"].clip(lower=1)).mean() if len(ident) else np.nan
+        rows.append(dict(zip(KEYS, key), alpha=alpha, confidence=confidence, n_calibration=n,
+                         expected_rate=false_alarm_bound(n, alpha, None if np.isnan(confidence) else confidence),
                          id_episodes=len(ident),
+                         id_false_alarm_rate=state_rate if key[3] == "state" else with_alarm,
                          id_alarms_per_1000_steps=1000 * ident["flagged_steps"].sum() / max(ident["steps"].sum(), 1),
-                         id_episodes_with_alarm=ident["any_alarm"].mean() if len(ident) else np.nan,
+                         id_episodes_with_alarm=with_alarm,
                          perturbed_episodes=len(pert), detected=delays.size / len(pert) if len(pert) else np.nan,
                          median_delay=delays.median() if delays.size else np.nan,
                          alarm_before_change=pert["alarm_before_change"].mean() if len(pert) else np.nan))
@@ -91,14 +103,14 @@ def _bar_height(table: pd.DataFrame) -> float:
 
 
 def false_alarm_figure(table: pd.DataFrame) -> Figure:
-    """Per env: ID alarms per 1000 steps of the state guard against 1000 alpha, and the share of ID episodes
-    with an alarm of the window and CUSUM guards against alpha (dashed lines: the bounds)."""
-    require_columns(table, KEYS + ["alpha", "id_alarms_per_1000_steps", "id_episodes_with_alarm"], "false_alarm_figure")
+    """Per env and guard kind: the ID false-alarm rate each guard bounds (a random state flagged for the state
+    guard, an episode with any alarm for the window and CUSUM guards) against alpha (dashed line)."""
+    require_columns(table, KEYS + ["alpha", "id_false_alarm_rate"], "false_alarm_figure")
     envs, methods = list(dict.fromkeys(table["env"])), [str(m) for m in dict.fromkeys(table["method"])]
     fig, axes = _figure(len(envs), 3, 3.6, _bar_height(table))
-    panels = (("state", "id_alarms_per_1000_steps", 1000.0, "ID alarms per 1000 steps"),
-              ("window", "id_episodes_with_alarm", 1.0, "ID episodes with an alarm"),
-              ("cusum", "id_episodes_with_alarm", 1.0, "ID episodes with an alarm"))
+    panels = (("state", "id_false_alarm_rate", 1.0, "ID states flagged"),
+              ("window", "id_false_alarm_rate", 1.0, "ID episodes with an alarm"),
+              ("cusum", "id_false_alarm_rate", 1.0, "ID episodes with an alarm"))
     for i, env in enumerate(envs):
         sub = table[table.env == env].assign(method=lambda d: d["method"].astype(str))
         alpha = float(sub["alpha"].iloc[0])

@@ -2,13 +2,14 @@
 
     guard:
       alpha: 0.05               # false-alarm rate (per state, or per episode for the sequential guards)
+      confidence: 0.9           # optional: each guard's own rate <= alpha with this probability (default: on average)
       window: 10                # sliding-window length of the window guard
       cusum_quantile: 0.9       # CUSUM drift = this quantile of held-out ID scores
       fallback: zero            # what acts while flagged
       fallback_scores: [value_std, mahalanobis_obs]   # guards whose fallback runs are measured
       combine: [value_std, mahalanobis_obs]           # a rank combination of these, where all apply
       budgets:                  # per profile; may also override alpha and window
-        tiny: {alpha: 0.2, window: 3, fit_episodes: 4, calibration_episodes: 8, ...}
+        tiny: {alpha: 0.2, window: 3, fit_episodes: 4, calibration_episodes: 12, ...}
         paper: {..., seeds: [0]}   # optional: only these seeds of the profile's runs (default: all)
 
 Every error is raised here, naming the key and what to write, before any rollout.
@@ -23,13 +24,15 @@ from typing import Any
 import yaml
 
 from paper_lib.config import RunConfig, validate_params
-from paper_lib.guard.conformal import check_alpha, check_window, min_calibration_size
+from paper_lib.guard.conformal import check_alpha, check_confidence, check_window, min_calibration_size
 from paper_lib.guard.scores import SCORE_NAMES
 
 SECTION = "guard"
 SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
 BUDGET = ("fit_episodes", "calibration_episodes", "id_test_episodes", "perturbed_episodes", "episode_steps",
           "change_steps")
+#: Keys that may be left out (None): confidence None is the marginal guarantee.
+OPTIONAL = ("confidence",)
 FALLBACKS = ("zero",)
 
 
@@ -51,13 +54,16 @@ class GuardSettings:
     episode_steps: int
     change_steps: tuple[int, int]  # the change happens at a uniform step in [low, high]
     seeds: tuple[int, ...] | None = None  # the runs' seeds the experiment covers (None: all of the profile's)
+    confidence: float | None = None  # each guard's own rate <= alpha with this probability (None: on average)
 
     def covers(self, seed: int) -> bool:
         return self.seeds is None or seed in self.seeds
 
     def caption(self) -> str:
         low, high = self.change_steps
-        return (f"guard alpha {self.alpha:g}; {self.calibration_episodes} held-out ID calibration "
+        certainty = ("on average over calibration sets" if self.confidence is None else
+                     f"for each guard with probability >= {self.confidence:g} over its calibration set")
+        return (f"guard alpha {self.alpha:g} ({certainty}); {self.calibration_episodes} held-out ID calibration "
                 f"episodes, {self.id_test_episodes} ID and {self.perturbed_episodes} perturbed test episodes of "
                 f"{self.episode_steps} steps, the physics changing at a uniform step in [{low}, {high}]; window "
                 f"{self.window}; CUSUM drift = {self.cusum_quantile:g} quantile of held-out ID scores"
@@ -83,25 +89,25 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     """Validate the section and merge the profile's budget over the shared settings."""
     if not isinstance(section, dict):
         raise ValueError(f"{where} must be a mapping with {list(SHARED)} and `budgets`, got {section!r}")
-    unknown = sorted(set(section) - set(SHARED) - {"budgets"})
+    unknown = sorted(set(section) - set(SHARED) - set(OPTIONAL) - {"budgets"})
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {list(SHARED) + ['budgets']}")
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {list(SHARED + OPTIONAL) + ['budgets']}")
     budgets = section.get("budgets")
     if not isinstance(budgets, dict) or profile not in budgets or not isinstance(budgets[profile], dict):
         have = sorted(budgets) if isinstance(budgets, dict) else []
         raise ValueError(f"{where}.budgets has no mapping for the active profile {profile!r} (has {have}); add "
                          f"`{profile}: {{{', '.join(f'{k}: ...' for k in BUDGET)}}}`")
     budget = budgets[profile]
-    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window", "seeds"})
+    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window", "confidence", "seeds"})
     if unknown:
         raise ValueError(f"{where}.budgets.{profile}: unknown key(s) {unknown}; known: {list(BUDGET)} "
-                         "(and alpha, window, seeds)")
+                         "(and alpha, window, confidence, seeds)")
     seeds = budget.get("seeds")
     if seeds is not None and not (isinstance(seeds, list) and seeds
                                   and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
         raise ValueError(f"{where}.budgets.{profile}: seeds must be a non-empty list of run seeds, e.g. [0], "
                          f"or left out for all of them; got {seeds!r}")
-    merged = {**{k: section.get(k) for k in SHARED}, **{k: v for k, v in budget.items() if k != "seeds"}}
+    merged = {**{k: section.get(k) for k in SHARED + OPTIONAL}, **{k: v for k, v in budget.items() if k != "seeds"}}
     missing = [k for k in SHARED + BUDGET if merged.get(k) is None]
     if missing:
         raise ValueError(f"{where}: {missing} not set for profile {profile!r}; set them in `guard` or in its budget")
@@ -109,6 +115,7 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     try:
         alpha = check_alpha(merged["alpha"])
         window = check_window(merged["window"])
+        confidence = check_confidence(merged["confidence"])
     except ValueError as err:
         raise ValueError(f"{here}: {err}") from None
     quantile = merged["cusum_quantile"]
@@ -123,11 +130,15 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     counts = {k: _int(merged[k], f"{here}: {k}", 1) for k in BUDGET[:-2]}
     if counts["fit_episodes"] < 2:
         raise ValueError(f"{here}: fit_episodes must be >= 2 (half fit the detectors, half set the CUSUM drift)")
-    need = min_calibration_size(alpha)
-    if counts["calibration_episodes"] < need:
+    need = min_calibration_size(alpha, confidence)
+    if counts["calibration_episodes"] < need and confidence is None:
         raise ValueError(f"{here}: alpha={alpha:g} needs calibration_episodes >= {need} (n >= 1/alpha - 1), got "
                          f"{counts['calibration_episodes']}; raise it or raise alpha to >= "
                          f"{1 / (counts['calibration_episodes'] + 1):.3g}")
+    if counts["calibration_episodes"] < need:
+        raise ValueError(f"{here}: alpha={alpha:g} at confidence={confidence:g} needs calibration_episodes >= {need} "
+                         f"(n >= log(1 - confidence) / log(1 - alpha)), got {counts['calibration_episodes']}; raise it, "
+                         "lower the confidence, or leave confidence out for the guarantee on average")
     steps = _int(merged["episode_steps"], f"{here}: episode_steps", 2)
     change = merged["change_steps"]
     if not (isinstance(change, list) and len(change) == 2 and all(isinstance(c, int) and not isinstance(c, bool)
@@ -140,7 +151,7 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     return GuardSettings(profile=profile, alpha=alpha, window=window, cusum_quantile=float(quantile),
                          fallback=merged["fallback"], fallback_scores=fallback_scores, combine=combine,
                          episode_steps=steps, change_steps=(change[0], change[1]),
-                         seeds=None if seeds is None else tuple(seeds), **counts)
+                         seeds=None if seeds is None else tuple(seeds), confidence=confidence, **counts)
 
 
 def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, GuardSettings]:
