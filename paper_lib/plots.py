@@ -199,6 +199,32 @@ def normalized_bars(df: pd.DataFrame) -> Figure:
     return fig
 
 
+def score_aurocs(df: pd.DataFrame, max_columns: int = 4) -> Figure:
+    """AUROC of several OOD scores per method, one panel per env: one dot per run, a bar for the mean.
+
+    Expects columns env, method, score, auroc (long form, one row per run and score). A dashed line
+    marks chance (0.5), so scores that rank OOD states below ID states stand out.
+    """
+    require_columns(df, ["env", "method", "score", "auroc"], "score_aurocs")
+    envs = list(pd.unique(df["env"]))
+    fig, axes = _grid_figure(len(envs), max_columns)
+    order, hue_order = list(pd.unique(df["method"])), list(pd.unique(df["score"]))
+    for ax, env_id in zip(axes, envs):
+        sub = df[df["env"] == env_id]
+        sns.barplot(data=sub, x="method", y="auroc", hue="score", order=order, hue_order=hue_order, errorbar=None,
+                    alpha=0.5, ax=ax)
+        sns.stripplot(data=sub, x="method", y="auroc", hue="score", order=order, hue_order=hue_order, dodge=True,
+                      size=3, legend=False, ax=ax)
+        ax.axhline(0.5, color="black", linestyle="--", linewidth=0.8)
+        ax.set(title=env_id, xlabel="", ylabel="AUROC", ylim=(0, 1))
+        ax.tick_params(axis="x", labelrotation=30)
+    handles, labels = axes[-1].get_legend_handles_labels()
+    for ax in axes:
+        ax.get_legend().remove()
+    fig.legend(handles, labels, title="score", loc="outside right upper", frameon=False)  # beside the grid, not in a cell
+    return fig
+
+
 def timeline(df: pd.DataFrame, event_step: float | None = None, reference: float | None = None,
              ylabel: str = "score") -> Figure:
     """Scores over the steps of one episode, one panel per ``panel``, colour = ``measure``.

@@ -5,7 +5,7 @@
     python -m paper_lib.reproduce --retrain     # make retrain: plain `dvc repro`, trains missing or changed runs (hours)
 
 The default command runs only the stages that read committed files: each run's `score` stage
-and the `guard`, `spawn` and `ensembles_scores` experiments where DVC finds them stale (their inputs or
+and the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments where DVC finds them stale (their inputs or
 code changed), and every table and figure stage, forced, for the runs that exist. Runs of the profile that lack a checkpoint,
 dataset or evaluation are listed (printed and in results/<profile>/runs.md), never made. It
 calls DVC with `--single-item`, so no upstream stage (train, collect, evaluate) can run.
@@ -36,8 +36,8 @@ from paper_lib.pipeline_status import (
 #: Table and figure stages in dependency order (paper_vs_us reads what rewards and ood write).
 TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
                 "example_states", "quickstart", "study", "scaling", "ensembles")
-#: Stages that simulate episodes from committed checkpoints: run only where DVC finds them stale.
-EXPERIMENT_STAGES = ("guard", "spawn", "ensembles_scores")
+#: Stages that replay or rescore committed checkpoints (slow as the matrix grows): run only where DVC finds them stale.
+EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
 QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
 
 
@@ -103,8 +103,10 @@ def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
                       if run[0] in MUJOCO_ENVS and run[1] != "baseline"]
     ready = {"guard": bool(available_runs(cfg, "checkpoint")),
              "spawn": bool(mujoco_members),
+             "value_level": bool(available_runs(cfg, "checkpoint", "dataset")),
              "ensembles_scores": all((results / part / "checkpoints").is_dir() for part in ("independent", "own"))}
     why = {"guard": "no run has a checkpoint", "spawn": "no MuJoCo member-method run has a checkpoint",
+           "value_level": "no run has a checkpoint and a dataset",
            "ensembles_scores": "no independent members or own runs trained yet (`python -m paper_lib.ensembles queue`)"}
     return [s for s in EXPERIMENT_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in EXPERIMENT_STAGES
                                                         if not ready[s]]

@@ -132,6 +132,15 @@ def probe_table(csv: Path) -> str:
     return "\n".join(lines)
 
 
+def value_level_part(tables: Path) -> str:
+    """Notebook 13's table with its computed reading: how much of value std's AUROC is the value level."""
+    from paper_lib.value_level import value_level_reading
+
+    lines = value_level_reading(pd.read_csv(tables / "value_level.csv"))
+    return (f"### Is value uncertainty more than a low value? (notebook 13, beyond the paper)\n\n"
+            f"{(tables / 'value_level.md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
+
+
 def paste(readme: str, start: str, end: str, body: str) -> str:
     """`readme` with the text between the `start` and `end` markers replaced by `body`."""
     head, _, rest = readme.partition(start)
@@ -157,6 +166,9 @@ def main(profile: str | None = None) -> None:
     claims = tables / "paper_claims.md"
     if claims.exists():
         parts.append(f"### The paper's claims, checked (notebook 6)\n\n{claims.read_text().strip()}")
+    value_level = tables / "value_level.md"
+    if value_level.exists():
+        parts.append(value_level_part(tables))
     readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
     bench = Path("results/bench/bench.csv")
     if bench.exists():

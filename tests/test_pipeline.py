@@ -21,7 +21,7 @@ BIN = Path(sys.executable).parent
 #: Notebooks of the main command that draw figures, with the least number of figures each shows inline.
 FIGURES_SHOWN = {"00_quickstart": 2, "03_ood_detection": 2, "04_uncertainty_over_time": 2,
                  "05_training_and_perturbations": 3, "07_example_states": 2, "08_guard": 3,
-                 "12_spawn": 1}
+                 "12_spawn": 1, "13_value_level": 1}
 
 
 def _copy_repo(dst: Path) -> Path:
@@ -83,7 +83,7 @@ def test_main_command_lists_missing_runs_and_trains_nothing(tiny_repo):
     for stage in ("train@", "collect@", "evaluate@", "score@"):
         assert f"Running stage '{stage}" not in log, log
     for stage in ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
-                  "example_states", "quickstart", "guard", "spawn"):
+                  "example_states", "quickstart", "guard", "spawn", "value_level"):
         assert f"Running stage '{stage}'" in log, log
     for stage in ("study", "scaling", "ensembles_scores", "ensembles"):  # their inputs are made by long runs only
         assert f"{stage}: skipped" in log and f"Running stage '{stage}'" not in log, log
@@ -104,13 +104,13 @@ def test_every_table_and_figure_from_the_runs_that_exist(tiny_repo):
         assert files, f"{out} is empty"
         assert all(f.stat().st_size > 0 for f in files), out
     for stem in ("rewards", "ood_auroc_perturbed", "ood_auroc_noise", "ood_metrics", "paper_vs_us_rewards",
-                 "paper_vs_us_auroc", "perturbation_ratios", "spawn_uncertainty", "paper_claims"):
+                 "paper_vs_us_auroc", "perturbation_ratios", "spawn_uncertainty", "value_level", "paper_claims"):
         for suffix in (".csv", ".md", ".tex"):
             assert (results / "tables" / f"{stem}{suffix}").stat().st_size > 0
     for stem in ("training_curves", "roc_value_policy", "roc_policy_js"):
         for suffix in (".png", ".pdf"):
             assert (results / "figures" / f"{stem}{suffix}").stat().st_size > 0
-    for folder in ("over_time", "perturbation_bars", "example_states", "quickstart", "guard", "spawn"):
+    for folder in ("over_time", "perturbation_bars", "example_states", "quickstart", "guard", "spawn", "value_level"):
         assert list((results / "figures" / folder).glob("*.png")), folder
     caption = (results / "tables" / "rewards.md").read_text().splitlines()[0]
     assert "profile 'tiny': 2 of its 4 runs" in caption and "1 seed per cell" in caption, caption
@@ -120,7 +120,7 @@ def test_executed_notebooks_show_their_figures_and_tables_inline(tiny_repo):
     import nbformat
 
     paths = sorted((tiny_repo / "results/tiny/notebooks").rglob("*.ipynb"))
-    assert len([p for p in paths if p.parent.name == "train"]) == 2 and len(paths) == 11, paths
+    assert len([p for p in paths if p.parent.name == "train"]) == 2 and len(paths) == 12, paths
     for path in paths:
         nb = nbformat.read(path, as_version=4)
         outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
