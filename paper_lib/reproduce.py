@@ -39,6 +39,24 @@ TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturb
 #: Stages that replay or rescore committed checkpoints (slow as the matrix grows): run only where DVC finds them stale.
 EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
 QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
+#: The two parts of notebook 11; each is scored and tabled as soon as it has runs, without waiting for the other.
+ENSEMBLE_PARTS = ("independent", "own")
+ENSEMBLE_FOLDERS = ("checkpoints", "datasets", "evaluations", "scores")
+
+
+def _has_files(folder: Path) -> bool:
+    return folder.is_dir() and any(path.is_file() for path in folder.rglob("*"))
+
+
+def make_ensemble_folders(cfg: RunConfig) -> None:
+    """Create the ensembles stages' declared folders (git keeps no empty folder).
+
+    DVC refuses a stage whose dependency is missing, so with only `own` runs trained the absent `independent`
+    folders would block both stages; an empty folder hashes the same on every clone.
+    """
+    for part in ENSEMBLE_PARTS:
+        for kind in ENSEMBLE_FOLDERS:
+            (cfg.results / part / kind).mkdir(parents=True, exist_ok=True)
 
 
 def _env() -> dict[str, str]:
@@ -84,14 +102,15 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
     results = cfg.results
     ready["study"] = (results / "studies" / "studies.db").is_file()
     ready["scaling"] = (results / "scaling").is_dir()
-    ready["ensembles"] = all((results / part).is_dir() for part in ("independent", "own", "scores"))
+    ready["ensembles"] = (results / "scores").is_dir() and any(_has_files(results / part / "scores")
+                                                                for part in ENSEMBLE_PARTS)
     why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
            "uncertainty_over_time": "no member-method run has scores",
            "training_and_perturbations": "no run has a checkpoint", "paper_vs_us": "it needs both rewards and ood",
            "quickstart": f"its agent {' '.join(QUICKSTART_RUN)} seed 0 has no checkpoint",
            "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
            "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
-           "ensembles": "it needs independent members, own runs and scored shared runs "
+           "ensembles": "it needs scored independent ensembles or own runs, and scored shared runs "
                         "(`python -m paper_lib.ensembles queue`)"}
     return [s for s in TABLE_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in TABLE_STAGES if not ready[s]]
 
@@ -104,7 +123,7 @@ def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
     ready = {"guard": bool(available_runs(cfg, "checkpoint")),
              "spawn": bool(mujoco_members),
              "value_level": bool(available_runs(cfg, "checkpoint", "dataset")),
-             "ensembles_scores": all((results / part / "checkpoints").is_dir() for part in ("independent", "own"))}
+             "ensembles_scores": any(_has_files(results / part / "checkpoints") for part in ENSEMBLE_PARTS)}
     why = {"guard": "no run has a checkpoint", "spawn": "no MuJoCo member-method run has a checkpoint",
            "value_level": "no run has a checkpoint and a dataset",
            "ensembles_scores": "no independent members or own runs trained yet (`python -m paper_lib.ensembles queue`)"}
@@ -124,6 +143,8 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     experiments, skipped = experiment_stages(cfg)
     for line in skipped:
         print(f"  {line}")
+    if "ensembles_scores" in experiments:
+        make_ensemble_folders(cfg)
     if experiments:
         _dvc(["repro", "--single-item", *experiments])
     stages, skipped = table_stages(cfg)

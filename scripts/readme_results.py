@@ -141,6 +141,13 @@ def value_level_part(tables: Path) -> str:
             f"{(tables / 'value_level.md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
 
 
+def own_vs_shared_part(tables: Path) -> str:
+    """Notebook 11's own-vs-shared table and its generated reading (the independent ensembles stay in the notebook)."""
+    table = (tables / "ensembles" / "ensembles_own_vs_shared.md").read_text().strip()
+    reading = (tables / "ensembles" / "ensembles_own_vs_shared_reading.md").read_text().strip().split("\n\n", 1)[-1]
+    return f"### Does keeping each member on-policy help? `own` vs `shared` (notebook 11, beyond the paper)\n\n{table}\n\n{reading}"
+
+
 def paste(readme: str, start: str, end: str, body: str) -> str:
     """`readme` with the text between the `start` and `end` markers replaced by `body`."""
     head, _, rest = readme.partition(start)
@@ -169,6 +176,8 @@ def main(profile: str | None = None) -> None:
     value_level = tables / "value_level.md"
     if value_level.exists():
         parts.append(value_level_part(tables))
+    if (tables / "ensembles" / "ensembles_own_vs_shared.md").exists():
+        parts.append(own_vs_shared_part(tables))
     readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
     bench = Path("results/bench/bench.csv")
     if bench.exists():
