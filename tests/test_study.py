@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 from optuna.trial import TrialState
 
-from paper_lib.study import analysis
+from paper_lib.study import analysis, scaling
 from paper_lib.study.config import load_study_config
 from paper_lib.study.objective import Objective, run_configuration
 from paper_lib.study.space import agent_kwargs, parse_param
@@ -106,6 +106,15 @@ def test_search_space_and_budgets_are_checked_where_they_enter(root, tmp_path):
         load_study_config(bad, "tiny")
     with pytest.raises(ValueError, match="has no profile 'huge'"):
         load_study_config(root / "params.yaml", "huge")
+    # the committed profile borrows the CPU budget (and says so); a mapping to a missing budget is one error
+    paper = load_study_config(root / "params.yaml", "paper")
+    assert (paper.budget, paper.studies_dir) == ("cpu", root / "results" / "paper" / "studies")
+    assert paper.studies == load_study_config(root / "params.yaml", "cpu").studies
+    assert "profile 'paper' at the 'cpu' study budget" in paper.budget_caption()
+    assert scaling.load_scaling_config(root / "params.yaml", "paper").budget == "cpu"
+    bad.write_text(text.replace("budget_of_profile: {paper: cpu}", "budget_of_profile: {paper: laptop}", 1))
+    with pytest.raises(ValueError, match="maps profile 'paper' to 'laptop'"):
+        load_study_config(bad, "paper")
     with pytest.raises(ValueError, match="journal files keep no heartbeats"):
         check_url("results/studies.journal")
     with pytest.raises(ValueError, match="in-memory database is lost"):
@@ -227,8 +236,6 @@ def _papermill(notebook: str, out: Path, root: Path) -> None:
 
 
 def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
-    from paper_lib.study import scaling
-
     for name in cfg.studies:  # every tiny study to its target, in this process (the sweep's DVC stage)
         run_study(cfg, name, sampler_seed=0, log=lambda line: None)
     _papermill("09_study.ipynb", root / "09.ipynb", root)

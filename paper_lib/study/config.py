@@ -1,11 +1,13 @@
 """params.yaml's `study` section -> a validated study configuration for one budget profile.
 
-The section has five parts, all data:
+The section has five parts, all data, and one optional mapping:
 - `objective`: how a trial is scored (reward's action mode, the noise OOD set, the AUROC measure);
 - `space`: the search space per algorithm (`ppo`, `a2c`, `trpo`), for the network and per method;
 - `ablations`: which sampled setting is each method's ablation axis (number of members, dropout p);
 - `budgets`: per profile (tiny, cpu, paper) which studies run, how many trials, how long each trains;
-- `scaling`: per profile, the hidden-layer widths of appendix E's scaling runs.
+- `scaling`: per profile, the hidden-layer widths of appendix E's scaling runs;
+- `budget_of_profile` (optional): which budget a run profile's study and scaling use, when not its own
+  (`paper: cpu`: the committed profile's study runs at the CPU budget, into results/paper/, and says so).
 
 Every error is raised here, with the key that is wrong and what to write, before any worker starts.
 """
@@ -28,6 +30,7 @@ SAMPLERS = ("tpe", "nsga2", "random")
 MEMBER_MEASURES = ("value_std", "policy_std", "policy_js")
 DETECTORS = ("mahalanobis_obs", "knn_obs", "mahalanobis_features", "knn_features")
 PARTS = ("objective", "space", "ablations", "budgets", "scaling")
+OPTIONAL_PARTS = ("budget_of_profile",)
 #: Keys of the space that do not go to the algorithm: the network and the member settings.
 NETWORK_KEYS = ("width", "activation_fn", "log_std_init")
 MEMBER_KEYS = ("n_members", "dropout_p", "masksembles_scale")
@@ -103,7 +106,8 @@ class Heartbeat:
 class StudyConfig:
     """One profile's studies, with everything a worker needs to run a trial of any of them."""
 
-    profile: str
+    profile: str  # the run profile: results go to results/<profile>/
+    budget: str  # the budget (study.budgets.<budget>) its studies use
     seed: int
     studies: dict[str, StudySpec]
     eval_episodes: int
@@ -140,7 +144,7 @@ class StudyConfig:
         specs = [s for s in self.studies.values() if algo is None or s.algo == algo]
         trials = "/".join(map(str, sorted({s.n_trials for s in specs})))
         steps = "/".join(sorted({str(s.total_timesteps or "full") for s in specs}))
-        return f"profile '{self.profile}': {trials} trials/study, {steps} steps/trial (paper: 190 trials, full budget)"
+        return f"{budget_label(self.profile, self.budget)}: {trials} trials/study, {steps} steps/trial (paper: 190 trials, full budget)"
 
     def budget_caption(self, algo: str | None = None) -> str:
         """What every study caption says: trials, training steps and evaluation, against the paper's."""
@@ -148,11 +152,29 @@ class StudyConfig:
         trials = sorted({s.n_trials for s in specs})
         steps = sorted({str(s.total_timesteps or "the paper's") for s in specs})
         o = self.objective
-        return (f"profile '{self.profile}': {'/'.join(map(str, trials))} trials per study, {'/'.join(steps)} training "
+        return (f"{budget_label(self.profile, self.budget)}: {'/'.join(map(str, trials))} trials per study, {'/'.join(steps)} training "
                 f"steps per trial, {self.eval_episodes} evaluation episodes "
                 f"({'deterministic' if o.deterministic_reward else 'sampled'} actions), AUROC on noise OOD "
                 f"({o.noise_magnitude:g}x ID std) of {self.n_id_states} ID states from {o.measure} "
                 f"(baseline: {o.baseline_measure}); the paper: 190 trials per study at the full training budget")
+
+
+def budget_label(profile: str, budget: str) -> str:
+    """How captions name the budget: the profile, and the budget where the profile borrows another's."""
+    return f"profile '{profile}'" if budget == profile else f"profile '{profile}' at the '{budget}' study budget"
+
+
+def resolve_budget(params: dict[str, Any], profile: str, path: Path, part: str, known: list[str]) -> str:
+    """The entry of `study.<part>` run profile `profile` uses: `study.budget_of_profile[profile]`, else its own."""
+    mapping = _mapping((params.get("study") or {}).get("budget_of_profile") or {}, f"{path}: study.budget_of_profile")
+    if profile not in mapping:
+        if profile not in known:
+            raise ValueError(f"{path}: study.{part} has no profile {profile!r}; known: {known}")
+        return profile
+    if mapping[profile] not in known:
+        raise ValueError(f"{path}: study.budget_of_profile maps profile {profile!r} to {mapping[profile]!r}, which "
+                         f"study.{part} lacks; use one of {known}")
+    return mapping[profile]
 
 
 def study_name(algo: str, env_id: str, method: str) -> str:
@@ -263,14 +285,13 @@ def load_study_config(path: str | Path = PARAMS_FILE, profile: str | None = None
     if "study" not in params:
         raise ValueError(f"{path} has no `study` section; restore it with `git checkout params.yaml`")
     section = _mapping(params["study"], f"{path}: study")
-    _known(section, PARTS, f"{path}: study", required=PARTS)
+    _known(section, PARTS + OPTIONAL_PARTS, f"{path}: study", required=PARTS)
     profile = profile or (params.get("run") or {}).get("profile")
     budgets = _mapping(section["budgets"], f"{path}: study.budgets")
-    if profile not in budgets:
-        raise ValueError(f"{path}: study.budgets has no profile {profile!r}; known: {sorted(budgets)}")
+    budget_key = resolve_budget(params, profile, path, "budgets", sorted(budgets))
     hps = params["hyperparameters"]
-    where = f"{path}: study.budgets.{profile}"
-    budget = _mapping(budgets[profile], where)
+    where = f"{path}: study.budgets.{budget_key}"
+    budget = _mapping(budgets[budget_key], where)
     keys = ("seed", "studies", "eval_episodes", "n_id_states", "max_episode_steps", "skip_first", "sampler",
             "heartbeat")
     _known(budget, keys, where, required=keys)
@@ -303,7 +324,7 @@ def load_study_config(path: str | Path = PARAMS_FILE, profile: str | None = None
     if heartbeat.grace_period <= heartbeat.interval:
         raise ValueError(f"{where}.heartbeat: grace_period={heartbeat.grace_period} must exceed interval="
                          f"{heartbeat.interval} seconds, or live trials are declared dead; e.g. 5x the interval")
-    return StudyConfig(profile=profile, seed=budget["seed"], studies=studies, eval_episodes=budget["eval_episodes"],
+    return StudyConfig(profile=profile, budget=budget_key, seed=budget["seed"], studies=studies, eval_episodes=budget["eval_episodes"],
                        n_id_states=budget["n_id_states"], max_episode_steps=budget["max_episode_steps"],
                        skip_first=budget["skip_first"], sampler=sampler, heartbeat=heartbeat,
                        objective=_objective(section["objective"], f"{path}: study.objective"),

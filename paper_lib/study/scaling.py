@@ -22,6 +22,7 @@ import pandas as pd
 
 from paper_lib.config import PARAMS_FILE, read_params
 from paper_lib.methods.networks import METHODS
+from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
 
 KEYS = ("widths", "methods", "seeds", "total_timesteps", "fixed", "eval_episodes")
@@ -37,7 +38,8 @@ class ScalingRun:
 
 @dataclass(frozen=True)
 class ScalingConfig:
-    profile: str
+    profile: str  # the run profile: results go to results/<profile>/scaling
+    budget: str  # the entry of study.scaling these runs use
     runs: list[ScalingRun]
     total_timesteps: int | None
     fixed: dict[str, Any]
@@ -55,7 +57,7 @@ class ScalingConfig:
     def caption(self) -> str:
         steps = self.total_timesteps or "each env's full"
         seeds = sorted({r.seed for r in self.runs})
-        return (f"profile '{self.profile}': {steps} training steps per run, {len(seeds)} seed(s) {seeds}, "
+        return (f"{budget_label(self.profile, self.budget)}: {steps} training steps per run, {len(seeds)} seed(s) {seeds}, "
                 f"{self.eval_episodes} deterministic evaluation episodes; the paper: 2-3 runs at the full budget")
 
 
@@ -64,10 +66,9 @@ def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = No
     params = read_params(path)
     profile = profile or (params.get("run") or {}).get("profile")
     section = ((params.get("study") or {}).get("scaling")) or {}
-    where = f"{path}: study.scaling.{profile}"
-    if profile not in section:
-        raise ValueError(f"{path}: study.scaling has no profile {profile!r}; known: {sorted(section)}")
-    raw = section[profile]
+    budget = resolve_budget(params, profile, path, "scaling", sorted(section))
+    where = f"{path}: study.scaling.{budget}"
+    raw = section[budget]
     if not isinstance(raw, dict) or set(raw) != set(KEYS):
         raise ValueError(f"{where} must have exactly the keys {list(KEYS)}, got {raw!r}")
     hps = params["hyperparameters"]
@@ -94,7 +95,7 @@ def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = No
         raise ValueError(f"{where}.fixed must be a mapping of algorithm settings, got {raw['fixed']!r}")
     runs = [ScalingRun(env_id, method, width, seed) for env_id, widths in raw["widths"].items()
             for method in raw["methods"] for width in widths for seed in raw["seeds"]]
-    return ScalingConfig(profile, runs, steps, dict(raw["fixed"]), episodes, hps, path.parent)
+    return ScalingConfig(profile, budget, runs, steps, dict(raw["fixed"]), episodes, hps, path.parent)
 
 
 def is_done(cfg: ScalingConfig, run: ScalingRun) -> bool:

@@ -62,7 +62,7 @@ def open_study(cfg: StudyConfig, spec: StudySpec, storage: RDBStorage, sampler_s
     """Create or load the study; a stored study made with other settings is an error, never mixed into."""
     study = optuna.create_study(study_name=spec.name, storage=storage, directions=list(DIRECTIONS),
                                 sampler=make_sampler(cfg.sampler, sampler_seed), load_if_exists=True)
-    identity = {**spec.identity(), "profile": cfg.profile, "objective": cfg.objective.__dict__,
+    identity = {**spec.identity(), "profile": cfg.profile, "budget": cfg.budget, "objective": cfg.objective.__dict__,
                 "eval_episodes": cfg.eval_episodes, "n_id_states": cfg.n_id_states,
                 "max_episode_steps": cfg.max_episode_steps, "skip_first": cfg.skip_first, "seed": cfg.seed}
     stored = study.user_attrs.get("identity")
@@ -198,7 +198,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="Optuna database URL (default: sqlite:///results/<profile>/studies/studies.db)")
     parser.add_argument("--trials", type=int, default=None,
                         help="COMPLETE trials the study should hold (default: the profile's n_trials)")
-    parser.add_argument("--profile", default=None, help="budget profile (default: params.yaml's active profile)")
+    parser.add_argument("--profile", default=None, help="run profile (default: params.yaml's active profile); its study budget is "
+                        "study.budget_of_profile's entry for it, else its own")
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--sampler-seed", type=int, default=None,
                         help="seed of this worker's sampler (default: random; give each worker its own)")
