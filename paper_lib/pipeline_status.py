@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from paper_lib.config import RunConfig, load_run_config
+from paper_lib.envs import is_atari
 from paper_lib.io import write_text_atomic
 from paper_lib.run_results import evaluation_path, score_files, scores_dir
 
@@ -126,6 +127,39 @@ def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str
             "min a run.")
 
 
+def remaining_training_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
+    """How many core-hours the runs without a checkpoint still need, estimated from the trained ones.
+
+    Each missing run counts the median wall time of the trained runs of its env and method, else of its
+    method in the other envs of its kind (Atari or MuJoCo: the network, not the game, sets an Atari run's
+    cost), else it is left out and counted as such: a plan for the queue, not a measurement.
+    """
+    table = status_table(cfg) if table is None else table
+    trained, missing = {}, []
+    for row in table.itertuples(index=False):
+        run = (row.env, row.method, row.seed)
+        minutes = training_minutes(cfg, run)
+        if minutes is not None:
+            trained.setdefault((row.env, row.method), []).append(minutes)
+        elif row.checkpoint == "no":
+            missing.append(run)
+    if not missing:
+        return ""
+    estimate, unknown = 0.0, 0
+    for env_id, method, _ in missing:
+        same = trained.get((env_id, method)) or [m for (e, k), ms in trained.items()
+                                                 if k == method and is_atari(e) == is_atari(env_id) for m in ms]
+        if same:
+            estimate += float(pd.Series(same).median())
+        else:
+            unknown += 1
+    text = (f"The {len(missing)} runs without a checkpoint need about {estimate / 60:.1f} core-hours more on the "
+            f"machine that trained the others (each: the median wall time of the trained runs of its env and "
+            f"method, else of its method in the other envs of its kind, Atari or MuJoCo)")
+    return text + (f"; {unknown} of them have no trained run of their method and kind to estimate from."
+                   if unknown else ".")
+
+
 def summary(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
     """'8 of 10 runs of profile cpu are complete; 2 are missing something' and the like."""
     table = status_table(cfg) if table is None else table
@@ -155,6 +189,8 @@ def write_status(cfg: RunConfig, stale: set[str] | None = None) -> Path:
     text = [f"# Runs of {summary(cfg, table)}", "",
             ("Tables and figures are built from the runs that have what they need; nothing is trained or "
              "collected by `make reproduce`."), "", training_time_line(cfg, table), ""]
+    remaining = remaining_training_line(cfg, table)
+    text += [remaining, ""] if remaining else []
     text += (["Missing:", ""] + [f"- {line}" for line in lines] if lines else ["Nothing is missing."]) + [""]
     text += [f"- {line}" for line in stale_lines(table)] + ([""] if stale_lines(table) else [])
     text += [table.to_markdown(index=False), ""]

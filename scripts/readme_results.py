@@ -90,10 +90,11 @@ def run_count(results: Path) -> str:
 
 
 def training_time(results: Path) -> str:
-    """The training wall-time line of runs.md (`pipeline_status.training_time_line`), or '' if it has none."""
+    """runs.md's training wall time and its estimate for the missing runs (`pipeline_status`), or ''."""
     status = results / "runs.md"
     lines = status.read_text().splitlines() if status.exists() else []
-    return next((line for line in lines if line.startswith("Training wall time")), "")
+    return " ".join(line for line in lines if line.startswith("Training wall time")
+                    or (line.startswith("The ") and "without a checkpoint need about" in line))
 
 
 def bench_table(csv: Path) -> str:

@@ -1,11 +1,14 @@
-"""`make reproduce` picks the stages whose inputs exist: the ensembles part runs with `own` runs alone."""
+"""`make reproduce` picks the stages whose inputs exist (the ensembles part runs with `own` runs alone) and says
+in runs.md what the missing runs will cost."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 from paper_lib.config import load_run_config
+from paper_lib.pipeline_status import remaining_training_line
 from paper_lib.reproduce import experiment_stages, make_ensemble_folders, table_stages
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,3 +39,18 @@ def test_ensembles_stages_wait_for_runs_then_run_with_own_runs_alone(tmp_path: P
     scored.mkdir(parents=True)
     (scored / "ood_metrics.csv").write_text("measure,auroc\n")
     assert "ensembles" in table_stages(cfg)[0]
+
+
+def test_runs_md_estimates_the_missing_training_from_the_trained_runs(tmp_path: Path):
+    cfg = dataclasses.replace(_empty_profile(tmp_path), envs=["Swimmer-v5", "SeaquestNoFrameskip-v4"],
+                              methods=["baseline", "ensemble"], seeds=[0, 1])
+    for (env_id, method, seed), minutes in {("Swimmer-v5", "baseline", 0): 10, ("Swimmer-v5", "ensemble", 0): 30,
+                                            ("SeaquestNoFrameskip-v4", "baseline", 0): 90}.items():
+        folder = cfg.checkpoint_dir(env_id, method, seed)
+        folder.mkdir(parents=True)
+        (folder / "config.json").write_text(json.dumps({"wall_seconds": minutes * 60}))
+    # missing: Swimmer baseline 1 (10 min), Swimmer ensemble 1 (30), Seaquest baseline 1 (90),
+    # Seaquest ensemble 0 and 1 (no Atari ensemble trained: not estimated)
+    line = remaining_training_line(cfg)
+    assert line.startswith("The 5 runs without a checkpoint need about 2.2 core-hours more"), line
+    assert line.endswith("2 of them have no trained run of their method and kind to estimate from."), line
