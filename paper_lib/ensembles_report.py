@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 
 from paper_lib.ensembles import ASSIGNMENTS, EnsemblesConfig, complete_combinations, complete_pairs
 from paper_lib.evaluation import summarize_rewards
+from paper_lib.methods.networks import METHODS
 from paper_lib.report import reward_table
 from paper_lib.run_results import read_evaluations, read_scores
 from paper_lib.tables import PLUS_MINUS
@@ -209,12 +210,14 @@ def own_vs_shared_figure(per_seed: pd.DataFrame) -> Figure:
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(quantities), squeeze=False)[0]
     data = per_seed.assign(run=per_seed["env"].str.replace("-v5", "") + "\n" + per_seed["method"])
+    runs = data[["env", "method", "run"]].drop_duplicates()  # one x order for every panel: env, then METHODS order
+    runs = runs.assign(rank=runs["method"].map({m: i for i, m in enumerate(METHODS)}))
+    order = list(runs.sort_values(["env", "rank"], kind="stable")["run"])
     for ax, quantity in zip(axes, quantities):
         sub = data[data["quantity"] == quantity]
         if sub.empty:
             ax.text(0.5, 0.5, "no complete pair yet", ha="center", va="center", transform=ax.transAxes)
         else:
-            order = list(pd.unique(sub["run"]))
             kw = dict(data=sub, x="run", y="value", hue="assignment", hue_order=list(ASSIGNMENTS), order=order, ax=ax)
             sns.stripplot(dodge=True, alpha=0.6, size=5, legend=False, **kw)
             sns.pointplot(dodge=0.4, errorbar="sd", linestyle="none", markers="D", capsize=0.1, **kw)

@@ -339,3 +339,18 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
         assert (figures / f"ensembles_own_vs_shared{suffix}").stat().st_size > 0
     for stem in ("ensembles_independent_rewards", "ensembles_independent_auroc", "ensembles_own_vs_shared"):
         assert "profile 'tiny'" in (tables / f"{stem}.md").read_text().splitlines()[0]
+
+
+def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
+    from paper_lib.ensembles_report import own_vs_shared_figure
+
+    rows = []
+    for quantity, methods in (("reward (deterministic)", ["ensemble", "masksembles"]),
+                              ("AUROC value_std", ["masksembles", "ensemble"])):  # rows arrive in either order
+        for method in methods:
+            for assignment in ("shared", "own"):
+                rows.append(dict(env="Swimmer-v5", method=method, seed=0, assignment=assignment,
+                                 quantity=quantity, value=1.0))
+    fig = own_vs_shared_figure(pd.DataFrame(rows))
+    ticks = [[t.get_text() for t in ax.get_xticklabels()] for ax in fig.axes]
+    assert ticks[0] == ticks[1] == ["Swimmer\nmasksembles", "Swimmer\nensemble"], ticks
