@@ -95,15 +95,16 @@ def show_figure(fig: Figure, stem: str | os.PathLike[str] | None = None, width: 
     display(Image(data=buffer.getvalue(), width=width))
 
 
-def roc_curves(df: pd.DataFrame) -> Figure:
+def roc_curves(df: pd.DataFrame, max_columns: int = 4) -> Figure:
     """ROC curves (OOD = positive), one panel per env, colour = method, line style = measure.
 
     Expects columns fpr, tpr, method, measure, env, one row per ROC point (e.g.
-    ``metrics.roc_points`` output with labels added). A grey diagonal marks chance.
+    ``metrics.roc_points`` output with labels added). A grey diagonal marks chance. Panels wrap
+    after ``max_columns`` (8 envs: two rows), with one legend beside the grid.
     """
     require_columns(df, ["fpr", "tpr", "method", "measure", "env"], "roc_curves")
     envs = list(pd.unique(df["env"]))
-    fig, axes = _new_figure(len(envs), legend_width=1.6)
+    fig, axes = _grid_figure(len(envs), max_columns)
     for ax, env in zip(axes, envs):
         sub = df[df["env"] == env]
         # estimator=None: ROC points share fpr values at vertical steps and must not be averaged.
@@ -112,7 +113,10 @@ def roc_curves(df: pd.DataFrame) -> Figure:
         ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
         ax.set(title=str(env), xlim=(0, 1), ylim=(0, 1.01))
         ax.set(xlabel="FPR (ID flagged as OOD)", ylabel="TPR (OOD detected)")
-    _keep_last_legend(axes, outside=True)
+    handles, labels = axes[-1].get_legend_handles_labels()
+    for ax in axes:
+        ax.get_legend().remove()
+    fig.legend(handles, labels, loc="outside right upper", frameon=False)  # beside the grid, not in a cell
     return fig
 
 

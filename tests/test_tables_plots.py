@@ -137,7 +137,16 @@ def test_roc_curves_panels_and_lines():
         lines = _data_lines(ax)
         assert len(lines) == 3 * 2 + 1  # method x measure, plus the chance diagonal
         np.testing.assert_array_equal(lines[-1].get_xydata(), [[0, 0], [1, 1]])
-    assert fig.axes[0].get_legend() is None and fig.axes[1].get_legend() is not None
+        assert ax.get_legend() is None
+    (legend,) = fig.legends  # one legend for the grid, naming every method and measure
+    assert {"ms", "drop", "ens", "value", "policy"} <= {t.get_text() for t in legend.get_texts()}
+
+
+def test_roc_curves_wrap_eight_envs_into_two_rows():
+    df = pd.concat([_roc_df().assign(env=lambda d, i=i: d["env"] + str(i)) for i in range(4)])  # 2 envs x 4
+    fig = plots.roc_curves(df)
+    rows = {round(ax.get_position().y0, 3) for ax in fig.axes}
+    assert len(fig.axes) == 8 and len(rows) == 2
 
 
 def test_uncertainty_over_time_red_boundary():
