@@ -584,3 +584,25 @@ def test_detection_table_reports_the_rate_each_guard_bounds():
     assert table.loc["state", "id_alarms_per_1000_steps"] == pytest.approx(1000 * 15 / 110)
     assert table.loc["window", "id_false_alarm_rate"] == pytest.approx(0.5)
     assert table.loc["state", "expected_rate"] == pytest.approx(2 / 101)  # k = 99 of n = 100 at confidence 0.9
+
+
+def test_false_alarm_figure_names_each_score_once_per_row_in_one_order():
+    """The three guard panels of an env share their rows: same score order, labels only on the left panel."""
+    from paper_lib.guard.report import false_alarm_figure
+
+    rows = [{"env": "Walker2d-v5", "method": method, "score": score, "guard": guard, "alpha": 0.05,
+             "id_false_alarm_rate": 0.01}
+            for guard in ("cusum", "state", "window") for method in ("baseline", "masksembles")
+            for score in (["value_std", "knn_obs"] if guard == "cusum" else ["knn_obs", "value_std"])]
+    fig = false_alarm_figure(pd.DataFrame(rows))
+    state, window, cusum = fig.axes[:3]
+    fig.canvas.draw()
+
+    def row_names(ax) -> list[str]:  # the score of each row, shown or not
+        return [tick.label1.get_text() for tick in ax.yaxis.get_major_ticks()]
+
+    assert row_names(state) == ["value_std", "knn_obs"]  # first appearance in the table (here the cusum rows)
+    assert [t.get_text() for t in state.get_yticklabels()] == ["value_std", "knn_obs"]
+    for ax in (window, cusum):
+        assert row_names(ax) == ["value_std", "knn_obs"]
+        assert ax.get_yticklabels() == []  # hidden: the left panel names the rows

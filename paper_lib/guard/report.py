@@ -114,13 +114,14 @@ def false_alarm_figure(table: pd.DataFrame) -> Figure:
     for i, env in enumerate(envs):
         sub = table[table.env == env].assign(method=lambda d: d["method"].astype(str))
         alpha = float(sub["alpha"].iloc[0])
+        scores = list(dict.fromkeys(sub["score"]))  # one row order for the three panels, named once on the left
         for j, (guard, column, scale, label) in enumerate(panels):
             ax = axes[i, j]
-            sns.barplot(sub[sub.guard == guard], y="score", x=column, hue="method", hue_order=methods, ax=ax,
-                        orient="h")
+            sns.barplot(sub[sub.guard == guard], y="score", x=column, hue="method", hue_order=methods, order=scores,
+                        ax=ax, orient="h")
             ax.axvline(scale * alpha, color="k", ls="--", lw=1)
             ax.set(title=f"{env}: {guard} guard", ylabel="", xlabel=label)
-            ax.tick_params(axis="y", labelsize="small")
+            ax.tick_params(axis="y", labelsize="small", labelleft=j == 0)
     _one_legend(fig, axes)
     return fig
 
