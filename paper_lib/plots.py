@@ -136,11 +136,12 @@ def uncertainty_over_time(df: pd.DataFrame) -> Figure:
     if not last_id < first_ood:
         raise ValueError(f"uncertainty_over_time: ID steps must precede OOD steps, but the last ID step is {last_id} "
                          f"and the first OOD step is {first_ood}; number the OOD states after the ID ones.")
-    fig, (ax,) = _new_figure(1)
+    fig, (ax,) = _new_figure(1, legend_width=1.6)
     sns.lineplot(data=df, x="step", y="score", hue="method", errorbar=None, linewidth=0.8, ax=ax,
                  hue_order=list(pd.unique(df["method"])))
     ax.axvline((last_id + first_ood) / 2, color="red", linewidth=1.5)
     ax.set(xlabel="step (ID, then OOD)", ylabel="uncertainty")
+    _keep_last_legend([ax], outside=True)  # a legend inside would hide the noisiest stretch of the traces
     return fig
 
 

@@ -160,6 +160,9 @@ def test_uncertainty_over_time_red_boundary():
     assert len(lines) == 3
     vline = lines[-1]
     assert vline.get_color() == "red" and list(vline.get_xdata()) == [5.5, 5.5]
+    fig.canvas.draw()  # the legend sits beside the axes, off the traces
+    legend, axes_box = ax.get_legend().get_window_extent(), ax.get_window_extent()
+    assert legend.x0 >= axes_box.x1
     with pytest.raises(ValueError, match="ID steps must precede OOD"):
         plots.uncertainty_over_time(df.assign(phase=np.tile(["ood"] * 5 + ["id"] * 5, 2)))
     with pytest.raises(ValueError, match="phase must take"):
