@@ -44,6 +44,14 @@ def _grid_figure(n_panels: int, max_columns: int) -> tuple[Figure, list]:
     return fig, list(grid[:n_panels])
 
 
+def _legend_beside_grid(fig: Figure, axes: list, title: str | None = None) -> None:
+    """One figure legend right of a panel grid (taken from the last panel), not inside a cell."""
+    handles, labels = axes[-1].get_legend_handles_labels()
+    for ax in axes:
+        ax.get_legend().remove()
+    fig.legend(handles, labels, title=title, loc="outside right upper", frameon=False)
+
+
 def _keep_last_legend(axes: list, outside: bool = False) -> None:
     """Panels share hue/style, so one legend (on the last panel) is enough; ``outside`` keeps it off the data."""
     for ax in axes[:-1]:
@@ -113,10 +121,7 @@ def roc_curves(df: pd.DataFrame, max_columns: int = 4) -> Figure:
         ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
         ax.set(title=str(env), xlim=(0, 1), ylim=(0, 1.01))
         ax.set(xlabel="FPR (ID flagged as OOD)", ylabel="TPR (OOD detected)")
-    handles, labels = axes[-1].get_legend_handles_labels()
-    for ax in axes:
-        ax.get_legend().remove()
-    fig.legend(handles, labels, loc="outside right upper", frameon=False)  # beside the grid, not in a cell
+    _legend_beside_grid(fig, axes)
     return fig
 
 
@@ -223,10 +228,7 @@ def score_aurocs(df: pd.DataFrame, max_columns: int = 4) -> Figure:
         ax.axhline(0.5, color="black", linestyle="--", linewidth=0.8)
         ax.set(title=env_id, xlabel="", ylabel="AUROC", ylim=(0, 1))
         ax.tick_params(axis="x", labelrotation=30)
-    handles, labels = axes[-1].get_legend_handles_labels()
-    for ax in axes:
-        ax.get_legend().remove()
-    fig.legend(handles, labels, title="score", loc="outside right upper", frameon=False)  # beside the grid, not in a cell
+    _legend_beside_grid(fig, axes, title="score")
     return fig
 
 
