@@ -248,13 +248,15 @@ def make_agent(
     device: str = "cpu",
     verbose: int = 0,
     tensorboard_log: str | None = None,
+    env_processes: bool = False,
 ) -> BaseAlgorithm:
     """Build an SB3 model with the paper's hyperparameters for `env_id` and the given method.
 
     `hyperparameters` replaces the packaged table entry for `env_id` (the pipeline passes
     params.yaml's). `overrides` replaces entries of the algorithm settings (e.g. {"n_steps": 64}). Every
     input is checked before an env or network is built. The resolved settings are kept on the
-    model as `model.paper_lib_config` and saved with it.
+    model as `model.paper_lib_config` and saved with it. `env_processes` steps the envs in
+    subprocesses (see `make_env`): the same transitions, for many-core machines.
     """
     if algo not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algo!r}; use one of {sorted(ALGORITHMS)}")
@@ -305,7 +307,8 @@ def make_agent(
 
     if env is None:
         env = make_env(env_id, n_envs, seed, normalize_obs=hp["normalize_obs"],
-                       normalize_reward=config["normalize_reward"], gamma=algo_kwargs["gamma"])
+                       normalize_reward=config["normalize_reward"], gamma=algo_kwargs["gamma"],
+                       env_processes=env_processes)
     elif env.num_envs != n_envs:
         raise ValueError(f"the given env has {env.num_envs} envs but n_envs={n_envs}")
     if config["linear_lr_decay"]:

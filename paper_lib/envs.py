@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import tempfile
@@ -12,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 from stable_baselines3.common.env_util import make_atari_env, make_vec_env
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecFrameStack, VecNormalize
 
 MUJOCO_ENVS = ("HalfCheetah-v5", "Ant-v5", "Walker2d-v5", "Swimmer-v5")
 ATARI_ENVS = ("SeaquestNoFrameskip-v4", "MsPacmanNoFrameskip-v4", "BerzerkNoFrameskip-v4", "SpaceInvadersNoFrameskip-v4")
@@ -35,6 +36,12 @@ def register_atari() -> None:
     import ale_py
 
     gym.register_envs(ale_py)
+
+
+def make_registered_atari(env_id: str, **gym_kwargs: Any) -> gym.Env:
+    """gym.make of an ALE id in any process: an env subprocess starts without the registration."""
+    register_atari()
+    return gym.make(env_id, **gym_kwargs)
 
 
 def gymnasium_asset(xml: str) -> str:
@@ -106,19 +113,25 @@ def make_single_env(env_id: str, **gym_kwargs: Any) -> gym.Env:
 
 def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
              env_kwargs: dict[str, Any] | None = None, normalize_reward: bool = False,
-             gamma: float = 0.99) -> VecEnv:
+             gamma: float = 0.99, env_processes: bool = False) -> VecEnv:
     """The vectorized env an agent trains in: Atari gets AtariWrapper + 4 stacked frames.
+
+    ``env_processes`` steps each env in its own process (SubprocVecEnv) instead of in turn in this
+    one: the same transitions for the same seed, faster where cores are many and the networks run
+    on a GPU (then stepping Atari envs, not the networks, bounds a run).
 
     ``normalize_reward`` scales training rewards by the running std of the discounted return
     (VecNormalize, with the algorithm's ``gamma`` as rl-baselines3-zoo passes it); evaluation
     always undoes it (`Checkpoint.env`), so reported rewards are the env's own.
     """
+    vec_env_cls = SubprocVecEnv if env_processes else DummyVecEnv
     if is_atari(env_id):
         register_atari()
-        venv: VecEnv = VecFrameStack(make_atari_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
+        game: Any = functools.partial(make_registered_atari, env_id) if env_processes else env_id
+        venv: VecEnv = VecFrameStack(make_atari_env(game, n_envs, seed=seed, vec_env_cls=vec_env_cls,
                                                     env_kwargs=env_kwargs), N_STACK)
     else:
-        venv = make_vec_env(env_id, n_envs, seed=seed, vec_env_cls=DummyVecEnv,
+        venv = make_vec_env(env_id, n_envs, seed=seed, vec_env_cls=vec_env_cls,
                             env_kwargs={**default_env_kwargs(env_id), **(env_kwargs or {})})
     if normalize_reward:
         venv = VecNormalize(venv, norm_obs=normalize_obs, norm_reward=True, gamma=gamma)

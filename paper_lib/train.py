@@ -175,6 +175,11 @@ def store_inference_weights(model: BaseAlgorithm) -> str:
     return "float16"
 
 
+def gpu_name(device: th.device) -> str | None:
+    """The accelerator a run trained on (its numbers differ from a CPU run's of the same seed), or None."""
+    return th.cuda.get_device_name(device) if device.type == "cuda" else None
+
+
 def check_budget(total_timesteps: Any) -> int:
     """A training budget is a positive whole number of steps."""
     if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)) or total_timesteps <= 0:
@@ -206,7 +211,9 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
         model.learn(steps - resumed_from, callback=curve, progress_bar=progress_bar, reset_num_timesteps=resumed_from == 0)
     config = {**model.paper_lib_config, "total_timesteps": steps, "trained_timesteps": int(model.num_timesteps),
               "wall_seconds": curve.wall_seconds, "resumed_from": resumed_from or None, "torch_threads": torch_threads,
-              "device": str(model.device), "versions": package_versions(), "machine": machine()}
+              "device": str(model.device), "gpu": gpu_name(model.device),
+              "env_processes": bool(agent_kwargs.get("env_processes", False)),
+              "versions": package_versions(), "machine": machine()}
     if model.num_timesteps >= steps and resume:  # a full resume point first: the export below drops the optimizer
         save_resume_point(model, resume_dir, curve.rows, curve.wall_seconds)
     strip_training_state(model)
@@ -276,6 +283,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--device", default="cpu",
                         help="torch device of the networks, e.g. cuda on a lent GPU machine (default: cpu)")
+    parser.add_argument("--env-processes", action="store_true",
+                        help="step the envs in subprocesses (same transitions; faster with many cores and a GPU)")
     parser.add_argument("--tensorboard", action="store_true", help="write TensorBoard logs beside the resume point")
     parser.add_argument("--progress-bar", action="store_true")
     args = parser.parse_args(argv)
@@ -290,7 +299,8 @@ def main(argv: list[str] | None = None) -> None:
             th.device(args.device)
         except RuntimeError:
             raise ValueError(f"--device must be a torch device such as cpu or cuda, got {args.device!r}") from None
-        agent_kwargs: dict[str, Any] = {"assignment": args.assignment, "device": args.device}
+        agent_kwargs: dict[str, Any] = {"assignment": args.assignment, "device": args.device,
+                                        "env_processes": args.env_processes}
         if args.hp:
             from paper_lib.agents import paper_hyperparameters
 

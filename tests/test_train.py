@@ -178,3 +178,27 @@ def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     PPO.load(out / "model.zip", device="cpu")
     leftovers = [p.name for p in tmp_path.iterdir() if p.name not in ("ckpt", ".ckpt.resume")]
     assert leftovers == [], "no temporary folders remain"
+
+
+def test_envs_in_subprocesses_train_the_same_agent(tmp_path):
+    """`--env-processes` (SubprocVecEnv, for many-core GPU machines) changes speed, not the transitions."""
+    game = "SeaquestNoFrameskip-v4"
+    tiny = {"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}, "n_envs": 4}
+    runs = {flag: train_run(game, "mc_dropout", 0, tmp_path / f"processes_{flag}", total_timesteps=128,
+                            agent_kwargs={**tiny, "env_processes": flag}) for flag in (False, True)}
+    configs = {flag: json.loads((out / "config.json").read_text()) for flag, out in runs.items()}
+    assert configs[True]["env_processes"] and not configs[False]["env_processes"]
+    assert configs[True]["gpu"] is None, "a CPU run names no accelerator"
+    weights = {flag: PPO.load(resume_dir_for(out) / "model.zip", device="cpu").policy.state_dict()
+               for flag, out in runs.items()}
+    for name, value in weights[False].items():
+        assert th.equal(value, weights[True][name]), name
+    curves = {flag: (out / "training_curve.csv").read_text().splitlines() for flag, out in runs.items()}
+    assert [r.split(",")[:3] for r in curves[False]] == [r.split(",")[:3] for r in curves[True]]
+    model = make_agent("ppo", "mc_dropout", game, 0, env_processes=True, **tiny)
+    layers, venv = [], model.get_env()
+    while venv is not None:
+        layers.append(type(venv).__name__)
+        venv = getattr(venv, "venv", None)
+    model.get_env().close()
+    assert layers[-1] == "SubprocVecEnv", layers
