@@ -54,17 +54,32 @@ class TrainingCurve(BaseCallback):
     """
 
     def __init__(self, rows: list[dict[str, float]] | None = None, elapsed: float = 0.0,
-                 resume_dir: Path | None = None, resume_every: int = RESUME_EVERY) -> None:
+                 resume_dir: Path | None = None, resume_every: int = RESUME_EVERY,
+                 segments: list[dict[str, Any]] | None = None, where: dict[str, Any] | None = None) -> None:
         super().__init__()
         self.rows: list[dict[str, float]] = list(rows or [])
         self.elapsed_before = elapsed
         self.start = time.perf_counter()
         self.resume_dir, self.resume_every = resume_dir, resume_every
         self.last_resume_step: int | None = None
+        self.segments_before = list(segments or [])
+        self.where = dict(where or {})
+        self.first_step: int | None = None
 
     @property
     def wall_seconds(self) -> float:
         return self.elapsed_before + time.perf_counter() - self.start
+
+    def segments(self, num_timesteps: int) -> list[dict[str, Any]]:
+        """Where each stretch of the run trained: a run resumed on another machine has two or more."""
+        start = num_timesteps if self.first_step is None else self.first_step
+        if num_timesteps <= start:
+            return list(self.segments_before)
+        return self.segments_before + [{"from_step": int(start), "to_step": int(num_timesteps),
+                                        "wall_seconds": time.perf_counter() - self.start, **self.where}]
+
+    def _on_training_start(self) -> None:
+        self.first_step = self.num_timesteps
 
     def _on_step(self) -> bool:
         return True
@@ -73,7 +88,8 @@ class TrainingCurve(BaseCallback):
         if self.last_resume_step is None:
             self.last_resume_step = self.num_timesteps
         if self.resume_dir is not None and self.num_timesteps - self.last_resume_step >= self.resume_every:
-            save_resume_point(self.model, self.resume_dir, self.rows, self.wall_seconds)
+            save_resume_point(self.model, self.resume_dir, self.rows, self.wall_seconds,
+                              self.segments(self.num_timesteps))
             self.last_resume_step = self.num_timesteps
 
     def _on_rollout_end(self) -> None:
@@ -97,7 +113,8 @@ def resume_dir_for(out_dir: str | Path) -> Path:
     return out_dir.parent / f".{out_dir.name}.resume"
 
 
-def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, float]], wall_seconds: float) -> None:
+def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, float]], wall_seconds: float,
+                      segments: list[dict[str, Any]] | None = None) -> None:
     """The full training state, swapped in atomically: a kill leaves the previous resume point."""
     with atomic_dir(folder) as tmp:
         model.save(tmp / "model.zip")  # includes the optimizer state
@@ -105,7 +122,7 @@ def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, f
         if normalizer is not None:
             normalizer.save(str(tmp / "vecnormalize.pkl"))
         state = {"num_timesteps": model.num_timesteps, "n_updates": getattr(model, "_n_updates", 0),
-                 "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds,
+                 "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds, "segments": segments or [],
                  "rng": {"torch": th.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
                  "config": getattr(model, "paper_lib_config", None)}
         with open(tmp / "state.pkl", "wb") as f:
@@ -201,21 +218,24 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
         agent_kwargs.setdefault("tensorboard_log", str(resume_dir.parent / f".{out_dir.name}.tensorboard"))
     model = make_agent(algo, method, env_id, seed, **agent_kwargs)
     steps = check_budget(total_timesteps if total_timesteps is not None else model.paper_lib_config["total_timesteps"])
-    rows, elapsed, resumed_from = [], 0.0, 0
+    rows, elapsed, resumed_from, segments = [], 0.0, 0, []
     if resume and (resume_dir / "state.pkl").is_file():
         state = load_resume_point(model, resume_dir)
         rows, elapsed, resumed_from = state["rows"], state["wall_seconds"], state["num_timesteps"]
+        segments = state.get("segments") or [{"from_step": 0, "to_step": resumed_from, "device": "not recorded"}]
         print(f"resuming {env_id} {method} seed {seed} from step {resumed_from} ({resume_dir})", file=sys.stderr)
-    curve = TrainingCurve(rows, elapsed, resume_dir, resume_every)
+    where = {"device": str(model.device), "gpu": gpu_name(model.device),
+             "env_processes": bool(agent_kwargs.get("env_processes", False)), "torch_threads": torch_threads,
+             "platform": machine()["platform"]}
+    curve = TrainingCurve(rows, elapsed, resume_dir, resume_every, segments, where)
     if resumed_from < steps:
         model.learn(steps - resumed_from, callback=curve, progress_bar=progress_bar, reset_num_timesteps=resumed_from == 0)
     config = {**model.paper_lib_config, "total_timesteps": steps, "trained_timesteps": int(model.num_timesteps),
               "wall_seconds": curve.wall_seconds, "resumed_from": resumed_from or None, "torch_threads": torch_threads,
-              "device": str(model.device), "gpu": gpu_name(model.device),
-              "env_processes": bool(agent_kwargs.get("env_processes", False)),
-              "versions": package_versions(), "machine": machine()}
+              "device": where["device"], "gpu": where["gpu"], "env_processes": where["env_processes"],
+              "segments": curve.segments(model.num_timesteps), "versions": package_versions(), "machine": machine()}
     if model.num_timesteps >= steps and resume:  # a full resume point first: the export below drops the optimizer
-        save_resume_point(model, resume_dir, curve.rows, curve.wall_seconds)
+        save_resume_point(model, resume_dir, curve.rows, curve.wall_seconds, config["segments"])
     strip_training_state(model)
     config["weights_dtype"] = store_inference_weights(model)
     with atomic_dir(out_dir) as tmp:

@@ -172,6 +172,10 @@ def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     assert "resuming CartPole-v1 ensemble seed 0 from step" in done.stderr
     config = json.loads((out / "config.json").read_text())
     assert config["trained_timesteps"] == 4096 and config["resumed_from"] > 0 and config["device"] == "cpu"
+    segments = config["segments"]
+    assert [s["device"] for s in segments] == ["cpu", "cpu"], "where each stretch trained: before and after the kill"
+    assert segments[0]["from_step"] == 0 and segments[-1]["to_step"] == 4096
+    assert segments[0]["to_step"] == segments[1]["from_step"] == config["resumed_from"]
     curve = (out / "training_curve.csv").read_text().splitlines()
     steps = [int(line.split(",")[0]) for line in curve[1:]]
     assert steps == sorted(set(steps)) and steps[-1] == 4096, "one curve, no step counted twice"
