@@ -1,12 +1,12 @@
-"""The lease helper's triage: runs that cannot all finish by the deadline give their cores to the first-listed."""
+"""The lease helper (scripts/gpu_runs.py), run here on the CPU: launch, stop, pack in parts, unpack, resume."""
 
 from __future__ import annotations
 
 import importlib.util
-import os
-import signal
+import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -19,27 +19,43 @@ def load_gpu_runs():
     return module
 
 
-def sleeper() -> int:
-    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True).pid
-
-
-def test_the_last_listed_run_is_killed_when_a_run_would_miss_the_deadline():
+def test_a_finished_and_a_stopped_run_come_back_and_the_stopped_one_resumes_here(tmp_path, monkeypatch):
     gpu_runs = load_gpu_runs()
-    launched, now = 1000.0, 1400.0
-    # 2000 steps/s over the last minute: 620k steps left take 310 s, ending 700 s after launch
-    runs = [{"env": "A", "method": m, "seed": 0, "status": "running", "pid": sleeper(),
-             "history": [[now - 70, 260_000], [now - 10, 380_000]]} for m in ("first", "last")]
-    state = {"launched": launched, "runs": runs}
-    try:
-        gpu_runs.triage(state, now, deadline=800, budget=1_000_000)
-        assert [r["status"] for r in runs] == ["running", "running"], "both finish by 800 s"
-        gpu_runs.triage(state, now, deadline=650, budget=1_000_000)
-        assert [r["status"] for r in runs] == ["running", "killed"]
-        os.waitpid(runs[1]["pid"], 0)
-        assert not gpu_runs.alive(runs[1]["pid"]) and gpu_runs.alive(runs[0]["pid"])
-        gpu_runs.triage(state, now + 30, deadline=650, budget=1_000_000)
-        assert runs[0]["status"] == "running", "no second kill before the rates of the survivors are measured again"
-    finally:
-        for run in runs:
-            if run["status"] == "running":
-                os.killpg(run["pid"], signal.SIGKILL)
+    work, out, here, resume_root = (tmp_path / name for name in ("work", "out", "here", "resume"))
+    gpu_runs.launch(work, [("CartPole-v1", "baseline", 0)], REPO, device="cpu", timesteps=512)
+    gpu_runs.launch(work, [("CartPole-v1", "mc_dropout", 0)], REPO, device="cpu", timesteps=10**6, resume_every=128)
+    state = gpu_runs.load_state(work)
+    finished, stopped = state["runs"]
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (
+            (work / gpu_runs.checkpoint_dir(finished) / "config.json").is_file()
+            and gpu_runs.progress(work, stopped) > 0):
+        time.sleep(0.1)
+    gpu_runs.watch(work, until=0, stop_after=True)
+    statuses = [r["status"] for r in gpu_runs.load_state(work)["runs"]]
+    assert statuses == ["finished", "stopped"], statuses
+    original = (gpu_runs.resume_point(work, stopped) / "state.pkl").read_bytes()
+    reached = gpu_runs.progress(work, stopped)
+
+    monkeypatch.setattr(gpu_runs, "PART_BYTES", 20_000)  # the resume point in several parts
+    gpu_runs.pack(work, out / "call1", max_files=1)  # one call's worth: the checkpoint only
+    gpu_runs.pack(work, out / "call2")
+    assert [p.name for p in (out / "call1").iterdir()] == ["CartPole-v1_baseline_seed0.tar.gz"]
+    parts = sorted(p.name for p in (out / "call2").iterdir())
+    assert len(parts) > 1 and all(".resume.tar.part" in name for name in parts), parts
+
+    here.mkdir()
+    gpu_runs.unpack([out / "call1", out / "call2"], here, resume_root)
+    config = json.loads((here / gpu_runs.checkpoint_dir(finished) / "config.json").read_text())
+    assert config["trained_timesteps"] == 512 and config["env_processes"]
+    placed = resume_root / here.resolve().relative_to("/") / gpu_runs.checkpoint_dir(stopped) / "state.pkl"
+    assert placed.read_bytes() == original
+
+    ckpt = here / gpu_runs.checkpoint_dir(stopped)
+    done = subprocess.run([sys.executable, "-m", "paper_lib.train", "CartPole-v1", "mc_dropout", "0", str(ckpt),
+                           "--timesteps", str(reached + 256), "--device", "cpu"], cwd=REPO, capture_output=True, text=True,
+                          timeout=300, env={"PAPER_LIB_RESUME_ROOT": str(resume_root), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stderr
+    assert f"resuming CartPole-v1 mc_dropout seed 0 from step {reached}" in done.stderr
+    segments = json.loads((ckpt / "config.json").read_text())["segments"]
+    assert [(s["from_step"], s["env_processes"]) for s in segments] == [(0, True), (reached, False)]
