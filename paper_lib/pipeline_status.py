@@ -106,13 +106,23 @@ def missing_lines(cfg: RunConfig, table: pd.DataFrame | None = None, artifacts: 
     return lines
 
 
+def began_on_gpu(config: dict) -> bool:
+    """Whether part of the run trained on an accelerator (config.json's `segments`): its wall time is not a CPU run's."""
+    return any(segment.get("device", "cpu") not in ("cpu", "not recorded") for segment in config.get("segments") or [])
+
+
 def training_minutes(cfg: RunConfig, run: Run) -> float | None:
-    """The run's training wall time in minutes (`wall_seconds` of its config.json, all resumed pieces), or None."""
-    config = cfg.checkpoint_dir(*run) / "config.json"
-    if not config.is_file():
+    """The run's training wall time in minutes on the CPU (`wall_seconds` of its config.json, all resumed pieces).
+
+    None without a checkpoint, and for runs that trained partly on a GPU: they would make this machine look
+    faster than it is.
+    """
+    path = cfg.checkpoint_dir(*run) / "config.json"
+    if not path.is_file():
         return None
-    seconds = json.loads(config.read_text()).get("wall_seconds")
-    return None if seconds is None else seconds / 60
+    config = json.loads(path.read_text())
+    seconds = config.get("wall_seconds")
+    return None if seconds is None or began_on_gpu(config) else seconds / 60
 
 
 def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
@@ -120,11 +130,15 @@ def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str
     table = status_table(cfg) if table is None else table
     minutes = [m for row in table.itertuples(index=False)
                if (m := training_minutes(cfg, (row.env, row.method, row.seed))) is not None]
+    on_gpu = sum(began_on_gpu(json.loads(path.read_text())) for row in table.itertuples(index=False)
+                 if (path := cfg.checkpoint_dir(row.env, row.method, row.seed) / "config.json").is_file())
+    runs_are = f"{on_gpu} runs begun on a lent GPU are" if on_gpu > 1 else "1 run begun on a lent GPU is"
+    gpu_note = f" ({runs_are} left out: see config.json's segments)" if on_gpu else ""
     if not minutes:
-        return "No trained run records its training wall time yet."
-    return (f"Training wall time of the {len(minutes)} trained runs: {sum(minutes) / 60:.1f} h in total (one core "
-            f"each, the sum of each run's `wall_seconds` in its config.json), {min(minutes):.0f}-{max(minutes):.0f} "
-            "min a run.")
+        return "No run trained on the CPU alone records its training wall time yet." + gpu_note
+    return (f"Training wall time of the {len(minutes)} runs trained on the CPU: {sum(minutes) / 60:.1f} h in total "
+            f"(one core each, the sum of each run's `wall_seconds` in its config.json), "
+            f"{min(minutes):.0f}-{max(minutes):.0f} min a run{gpu_note}.")
 
 
 def remaining_training_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:

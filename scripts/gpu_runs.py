@@ -15,9 +15,12 @@ Here, `unpack` puts them in place: checkpoints into the repository, resume point
 root, where `scripts/train_queue.sh` continues them on this machine's CPUs (config.json's `segments`
 then says which steps ran where).
 
-Measured on an H200 lease (2026-11-26; 8 Atari runs of 8 envs each): about 850 steps/s per run
-(MC Dropout ~650), the first resume point after ~90 s of start-up. Stopping some runs did not speed up
-the others (the bound is each run's own loop, not the cores), so start as many as the machine holds.
+The runs import a copy of paper_lib and params.yaml (WORK/code): a later call replaces the working tree.
+Measured on leases (Atari, 8 envs a run): H100, 2026-11-24, envs stepped in the run's own process:
+14 runs at once ~370 steps/s each, 5 at once ~520. H200, 2026-11-26, `--env-processes`: 8 runs at once
+~850 steps/s each (MC Dropout ~650), 4 at once the same (the bound is each run's own loop, not the
+cores), the first resume point after ~90 s of start-up. A 1e6-step Atari run needs ~20 min: more than
+one call (10 min), so runs come back as resume points and finish here.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import io
 import json
 import os
 import pickle
+import shutil
 import signal
 import subprocess
 import sys
@@ -71,8 +75,12 @@ def launch(work: Path, runs: list[tuple[str, str, int]], repo: Path, device: str
     """Start every run in its own session and record its pid (beside the runs of an earlier launch)."""
     work = work.resolve()
     work.mkdir(parents=True, exist_ok=True)
+    code = work / "code"
+    if not code.exists():  # later calls replace the working tree under the running runs
+        shutil.copytree(repo / "paper_lib", code / "paper_lib", ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.copy2(repo / "params.yaml", code / "params.yaml")
     env = {**os.environ, "PAPER_LIB_RESUME_ROOT": str(work / "resume"), "OMP_NUM_THREADS": "1",
-           "MKL_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(filter(None, [str(repo), os.environ.get("PYTHONPATH")]))}
+           "MKL_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(filter(None, [str(code), os.environ.get("PYTHONPATH")]))}
     state = load_state(work) if state_file(work).is_file() else {"launched": time.time(), "runs": []}
     for env_id, method, seed in runs:
         run = {"env": env_id, "method": method, "seed": seed, "status": "running"}
@@ -81,7 +89,7 @@ def launch(work: Path, runs: list[tuple[str, str, int]], repo: Path, device: str
         if timesteps is not None:
             cmd += ["--timesteps", str(timesteps)]
         log = open(work / f"{run_name(run)}.log", "w")
-        proc = subprocess.Popen(cmd, cwd=repo, env=env, stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen(cmd, cwd=code, env=env, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
         run["pid"] = proc.pid
         state["runs"].append(run)

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from paper_lib.config import load_run_config
-from paper_lib.pipeline_status import remaining_training_line
+from paper_lib.pipeline_status import remaining_training_line, training_time_line
 from paper_lib.reproduce import experiment_stages, make_ensemble_folders, table_stages
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,8 +49,16 @@ def test_runs_md_estimates_the_missing_training_from_the_trained_runs(tmp_path: 
         folder = cfg.checkpoint_dir(env_id, method, seed)
         folder.mkdir(parents=True)
         (folder / "config.json").write_text(json.dumps({"wall_seconds": minutes * 60}))
-    # missing: Swimmer baseline 1 (10 min), Swimmer ensemble 1 (30), Seaquest baseline 1 (90),
-    # Seaquest ensemble 0 and 1 (no Atari ensemble trained: not estimated)
+    gpu_begun = cfg.checkpoint_dir("SeaquestNoFrameskip-v4", "baseline", 1)
+    gpu_begun.mkdir(parents=True)
+    (gpu_begun / "config.json").write_text(json.dumps({"wall_seconds": 600, "segments": [
+        {"from_step": 0, "to_step": 400, "device": "cuda"}, {"from_step": 400, "to_step": 1000, "device": "cpu"}]}))
+    (gpu_begun / "model.zip").write_bytes(b"")
+    # missing: Swimmer baseline 1 (10 min), Swimmer ensemble 1 (30), Seaquest ensemble 0 and 1 (no Atari
+    # ensemble trained: not estimated); Seaquest baseline 1 began on a GPU: not a measure of this CPU
     line = remaining_training_line(cfg)
-    assert line.startswith("The 5 runs without a checkpoint need about 2.2 core-hours more"), line
+    assert line.startswith("The 4 runs without a checkpoint need about 0.7 core-hours more"), line
     assert line.endswith("2 of them have no trained run of their method and kind to estimate from."), line
+    times = training_time_line(cfg)
+    assert times.startswith("Training wall time of the 3 runs trained on the CPU: 2.2 h in total"), times
+    assert "10-90 min a run (1 run begun on a lent GPU is left out" in times, times
