@@ -126,7 +126,7 @@ def training_minutes(cfg: RunConfig, run: Run) -> float | None:
 
 
 def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
-    """'Training wall time of the 7 trained runs: 5.3 h in total (one core each), 33-53 min a run' and the like."""
+    """'Training wall time of the 7 runs trained on the CPU: 5.3 h in total (one core each), 33-53 min a run' and the like."""
     table = status_table(cfg) if table is None else table
     minutes = [m for row in table.itertuples(index=False)
                if (m := training_minutes(cfg, (row.env, row.method, row.seed))) is not None]

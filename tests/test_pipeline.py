@@ -91,7 +91,7 @@ def test_main_command_lists_missing_runs_and_trains_nothing(tiny_repo):
     assert not (tiny_repo / "results/tiny/checkpoints/HalfCheetah-v5/masksembles/seed1").exists()
     runs = (tiny_repo / "results/tiny/runs.md").read_text()
     assert "4 runs, 2 complete" in runs and "HalfCheetah-v5 baseline seed 1: no checkpoint" in runs
-    assert "Training wall time of the 2 trained runs: " in runs  # summed from the runs' config.json
+    assert "Training wall time of the 2 runs trained on the CPU: " in runs  # summed from the runs' config.json
 
 
 def test_every_table_and_figure_from_the_runs_that_exist(tiny_repo):
