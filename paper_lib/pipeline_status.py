@@ -111,27 +111,34 @@ def began_on_gpu(config: dict) -> bool:
     return any(segment.get("device", "cpu") not in ("cpu", "not recorded") for segment in config.get("segments") or [])
 
 
-def training_minutes(cfg: RunConfig, run: Run) -> float | None:
-    """The run's training wall time in minutes on the CPU (`wall_seconds` of its config.json, all resumed pieces).
+def run_config(cfg: RunConfig, run: Run) -> dict | None:
+    """The run's config.json, or None without a checkpoint."""
+    path = cfg.checkpoint_dir(*run) / "config.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def cpu_minutes(config: dict | None) -> float | None:
+    """A run's training wall time in minutes on the CPU (`wall_seconds`, all resumed pieces).
 
     None without a checkpoint, and for runs that trained partly on a GPU: they would make this machine look
     faster than it is.
     """
-    path = cfg.checkpoint_dir(*run) / "config.json"
-    if not path.is_file():
-        return None
-    config = json.loads(path.read_text())
-    seconds = config.get("wall_seconds")
+    seconds = None if config is None else config.get("wall_seconds")
     return None if seconds is None or began_on_gpu(config) else seconds / 60
+
+
+def training_minutes(cfg: RunConfig, run: Run) -> float | None:
+    """`cpu_minutes` of the run's config.json."""
+    return cpu_minutes(run_config(cfg, run))
 
 
 def training_time_line(cfg: RunConfig, table: pd.DataFrame | None = None) -> str:
     """'Training wall time of the 7 runs trained on the CPU: 5.3 h in total (one core each), 33-53 min a run' and the like."""
     table = status_table(cfg) if table is None else table
-    minutes = [m for row in table.itertuples(index=False)
-               if (m := training_minutes(cfg, (row.env, row.method, row.seed))) is not None]
-    on_gpu = sum(began_on_gpu(json.loads(path.read_text())) for row in table.itertuples(index=False)
-                 if (path := cfg.checkpoint_dir(row.env, row.method, row.seed) / "config.json").is_file())
+    configs = [c for row in table.itertuples(index=False)
+               if (c := run_config(cfg, (row.env, row.method, row.seed))) is not None]
+    minutes = [m for c in configs if (m := cpu_minutes(c)) is not None]
+    on_gpu = sum(began_on_gpu(c) for c in configs)
     runs_are = f"{on_gpu} runs begun on a lent GPU are" if on_gpu > 1 else "1 run begun on a lent GPU is"
     gpu_note = f" ({runs_are} left out: see config.json's segments)" if on_gpu else ""
     if not minutes:

@@ -122,7 +122,8 @@ def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, f
         if normalizer is not None:
             normalizer.save(str(tmp / "vecnormalize.pkl"))
         state = {"num_timesteps": model.num_timesteps, "n_updates": getattr(model, "_n_updates", 0),
-                 "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds, "segments": segments or [],
+                 "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds,
+                 "segments": segments or [],
                  "rng": {"torch": th.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
                  "config": getattr(model, "paper_lib_config", None)}
         with open(tmp / "state.pkl", "wb") as f:
