@@ -4,6 +4,7 @@
 #   make test        set up .venv, then the test suite (CI runs exactly this: .ci/run)
 #   make recollect   ID/OOD states and evaluation episodes again for every committed checkpoint, then reproduce (long)
 #   make retrain     train every missing or changed run of the active profile, then everything (HOURS per run)
+#   make verify      recompute the committed scores of one run per env aside and compare them, file by file
 #   make render-deps install the EGL libraries MuJoCo's offscreen rendering needs (Debian/Ubuntu, as root)
 PYTHON ?= python3.11
 VENV := .venv
@@ -11,7 +12,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 WITH_VENV := PATH=$(CURDIR)/$(BIN):$$PATH
 
-.PHONY: setup reproduce regenerate recollect retrain test bench render-deps
+.PHONY: setup reproduce regenerate recollect retrain test bench verify render-deps
 
 setup: $(STAMP)
 
@@ -39,6 +40,10 @@ retrain: $(STAMP)
 
 test: $(STAMP)
 	$(WITH_VENV) $(BIN)/python -m pytest -n 2 -q tests
+
+# Same seed, same machine: same numbers. Writes nothing under results/ (paper_lib/verify.py).
+verify: $(STAMP)
+	$(WITH_VENV) $(BIN)/python -m paper_lib.verify
 
 bench: $(STAMP)
 	$(BIN)/python -m paper_lib.bench

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import platform
 from importlib import metadata
+from pathlib import Path
 
 PACKAGES = ("torch", "stable-baselines3", "sb3-contrib", "gymnasium", "mujoco", "ale-py", "numpy", "masksembles",
             "scikit-learn", "paper_lib")
@@ -21,4 +23,22 @@ def package_versions() -> dict[str, str]:
 
 
 def machine() -> dict[str, str]:
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine()}
+    """The platform and the CPU: its model and SIMD extensions choose the BLAS and torch kernels, so two machines that
+    differ there can give results that differ in the last float bits (`python -m paper_lib.verify` shows where)."""
+    cpu = cpu_info()
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu": cpu.get("model name", "unknown"), "cpus": str(os.cpu_count()),
+            "simd": " ".join(sorted(f for f in cpu.get("flags", "").split() if f.startswith(("avx", "amx", "fma"))))}
+
+
+def cpu_info(path: str | Path = "/proc/cpuinfo") -> dict[str, str]:
+    """The first processor's fields in /proc/cpuinfo (Linux); empty where there is no such file."""
+    try:
+        text = Path(path).read_text()
+    except OSError:
+        return {}
+    fields = {}
+    for line in text.split("\n\n")[0].splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields

@@ -158,3 +158,30 @@ def test_a_stage_with_a_missing_checkpoint_fails_clearly_and_writes_nothing(tiny
     assert "model.zip is missing" in done.stderr and "dvc repro -f -s train@" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert not evaluation.exists(), "no partial evaluation left behind"
+
+
+def test_verify_recomputes_committed_results_aside_and_finds_a_changed_number(tiny_repo):
+    """`python -m paper_lib.verify`: same seed, same machine, same files; an edited committed number is found."""
+    verify = [str(BIN / "python"), "-m", "paper_lib.verify", "--all", "--stages", "evaluate", "score"]
+    before = _git(tiny_repo, "status", "--porcelain")
+    done = _run(verify, tiny_repo)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "12 of 12 files the same as the committed ones (2 run(s), stages evaluate, score)" in done.stdout, done.stdout
+    assert _git(tiny_repo, "status", "--porcelain") == before, "verify writes nothing under results/"
+
+    metrics = tiny_repo / "results/tiny/scores/HalfCheetah-v5/masksembles/seed0/metrics.csv"
+    committed = metrics.read_text()
+    header, first, *rest = committed.splitlines(keepends=True)
+    auroc = header.split(",").index("auroc")
+    cells = first.split(",")
+    cells[auroc] = repr(float(cells[auroc]) + 0.001)
+    try:
+        metrics.write_text("".join([header, ",".join(cells), *rest]))
+        done = _run([str(BIN / "python"), "-m", "paper_lib.verify", "--run", "HalfCheetah-v5", "masksembles", "0"],
+                    tiny_repo)
+    finally:
+        metrics.write_text(committed)
+    assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-3000:]
+    row = next(line for line in done.stdout.splitlines() if "| metrics.csv" in line)
+    assert "numbers differ" in row and "auroc" in row and "0.001" in row, done.stdout
+    assert "4 of 5 files the same" in done.stdout, done.stdout

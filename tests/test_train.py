@@ -176,6 +176,7 @@ def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     assert [s["device"] for s in segments] == ["cpu", "cpu"], "where each stretch trained: before and after the kill"
     assert segments[0]["from_step"] == 0 and segments[-1]["to_step"] == 4096
     assert segments[0]["to_step"] == segments[1]["from_step"] == config["resumed_from"]
+    assert {"platform", "cpu", "cpus", "simd"} <= set(config["machine"]), "the CPU, whose kernels set the last bits"
     curve = (out / "training_curve.csv").read_text().splitlines()
     steps = [int(line.split(",")[0]) for line in curve[1:]]
     assert steps == sorted(set(steps)) and steps[-1] == 4096, "one curve, no step counted twice"
