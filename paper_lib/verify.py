@@ -178,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         print("\nNumbers that differ at float32 precision (relative ~1e-7), and ROC points or rank metrics that one "
               "flipped pair of nearly tied states moves, usually mean another CPU or BLAS thread count than the "
               "committed files were made with; larger differences, changed code, params.yaml or packages "
-              "(`dvc status` lists stale stages).")
+              "(`dvc status` lists stale stages). Reward episodes go their own way from the first differing bit "
+              "(physics and games amplify it), so on another CPU their rewards differ by up to the episodes' spread.")
     return 1 if len(different) else 0
 
 
