@@ -143,6 +143,13 @@ def runs_to_verify(cfg: RunConfig, stages: tuple[str, ...], requested: list[Run]
     return list(first.values())
 
 
+def _seed(text: str) -> int:
+    if not text.isdigit():
+        raise ValueError(f"--run takes ENV METHOD SEED with an integer seed, e.g. --run HalfCheetah-v5 masksembles 0; "
+                         f"got seed {text!r}")
+    return int(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", nargs=3, action="append", metavar=("ENV", "METHOD", "SEED"),
@@ -155,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     stages = tuple(s for s in STAGES if s in args.stages)
     try:
         cfg = load_run_config(args.params)
-        requested = [(env, method, int(seed)) for env, method, seed in args.run or []]
+        requested = [(env, method, _seed(seed)) for env, method, seed in args.run or []]
         runs = runs_to_verify(cfg, stages, requested, args.all)
     except ValueError as err:
         parser.exit(2, f"error: {err}\n")

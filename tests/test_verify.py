@@ -57,3 +57,12 @@ def test_cpu_info_reads_the_first_processor(tmp_path):
                     "model name\t: Other\n")
     assert cpu_info(info) == {"processor": "0", "model name": "Some CPU", "flags": "fpu avx2 avx512f"}
     assert cpu_info(tmp_path / "absent") == {}
+
+
+def test_a_seed_that_is_not_a_number_is_one_clear_error(capsys):
+    from paper_lib.verify import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--run", "HalfCheetah-v5", "masksembles", "zero"])
+    assert exit_.value.code == 2
+    assert "integer seed" in capsys.readouterr().err
