@@ -276,6 +276,41 @@ def counts_note(long: pd.DataFrame) -> str:
             f"the baseline: {_count(long['baseline_seeds'], 'seed')}, {_count(long['baseline_episodes'], 'episode')}")
 
 
+#: What makes two evaluation episodes the same game, as far as the episode files can tell.
+GAME_KEYS = ["member", "reward", "length"]
+
+
+def repeated_games(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per run and action mode: how many of its evaluation episodes are distinct games (member, reward and length).
+
+    Atari's NoFrameskip-v4 emulator has no sticky actions, and SB3's up to 30 no-op starts barely move some games'
+    first state (MsPacman waits through its intro), so a deterministic policy can replay one game in every episode:
+    its std over episodes is then 0 and its mean one game's score. Only groups with a repeated game are returned.
+    """
+    keys = ["env", "method", "seed", "inference", "deterministic"]
+    games = episodes.assign(member=episodes["member"].fillna(-1)) if "member" in episodes else episodes.assign(member=-1)
+    counts = games.groupby(keys).apply(lambda g: pd.Series({"episodes": len(g),
+                                                             "distinct_games": len(g[GAME_KEYS].drop_duplicates())}),
+                                       include_groups=False).reset_index()
+    counts["actions"] = np.where(counts.pop("deterministic"), "deterministic", "sampled")
+    repeated = counts[counts["distinct_games"] < counts["episodes"]]
+    return repeated[["env", "method", "seed", "inference", "actions", "episodes", "distinct_games"]].reset_index(drop=True)
+
+
+def repeated_games_note(repeated: pd.DataFrame, episodes: pd.DataFrame) -> str:
+    """One sentence: how many run x mode groups replay games, the fewest distinct ones, and which action modes."""
+    groups = episodes.groupby(["env", "method", "seed", "inference", "deterministic"]).ngroups
+    if repeated.empty:
+        return f"Every one of the {groups} run x mode groups played distinct games in all its episodes."
+    fewest = repeated.sort_values("distinct_games").iloc[0]
+    modes = " and ".join(sorted(set(repeated["actions"])))
+    return (f"{len(repeated)} of {groups} run x mode groups replayed a game ({modes} actions; envs: "
+            f"{', '.join(dict.fromkeys(repeated['env']))}); the fewest: {fewest['env']} {fewest['method']} seed "
+            f"{fewest['seed']}, {fewest['inference']} inference, {fewest['actions']} actions, {fewest['distinct_games']} "
+            f"distinct game(s) in {fewest['episodes']} episodes. Such a cell's std is not a spread over games, and its "
+            f"mean rests on fewer games than its episode count says.")
+
+
 # ----------------------------------------------------------------------------- AUROC over seeds and against detectors
 
 #: Measures that need the members (or, for max_prob and entropy, a discrete policy); the rest are member-free detectors.

@@ -82,6 +82,18 @@ def reading(tables: Path) -> str:
     return "\n".join(lines + reward_lines(tables) + auroc_lines(tables))
 
 
+def repeated_games_line(tables: Path) -> str:
+    """Notebook 2's count of the run x mode groups that replay a game, from the episodes it wrote ('' before it did)."""
+    from paper_lib.report import repeated_games, repeated_games_note
+
+    path = tables / "reward_episodes.csv"
+    if not path.exists():
+        return ""
+    episodes = pd.read_csv(path)
+    return (f"\n\nRepeated games (notebook 2, `reward_repeated_games.md`): "
+            f"{repeated_games_note(repeated_games(episodes), episodes)}")
+
+
 def run_count(results: Path) -> str:
     """The first line of runs.md: how many of the profile's runs exist and what they have."""
     status = results / "runs.md"
@@ -166,7 +178,7 @@ def main(profile: str | None = None) -> None:
     results = Path("results") / profile
     tables = results / "tables"
     parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`). {training_time(results)}".strip(),
-             f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}",
+             f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}{repeated_games_line(tables)}",
              f"### Reward against the paper\n\n{(tables / 'paper_vs_us_rewards.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{(tables / 'ood_auroc_perturbed.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC, noise states (2x ID std)\n\n{(tables / 'ood_auroc_noise.md').read_text().strip()}",

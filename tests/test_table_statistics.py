@@ -305,3 +305,27 @@ def test_episode_i_starts_alike_whatever_the_policy(env_id):
     assert np.array_equal(starts["zero"], starts["random"])
     assert not np.array_equal(starts["zero"][0], starts["zero"][1])  # each episode its own start
     assert not np.allclose(starts["zero"], starts["other seed"])
+
+
+def test_repeated_games_counts_the_distinct_games_of_each_run_and_mode():
+    from paper_lib.report import repeated_games, repeated_games_note
+
+    def group(method, inference, deterministic, rewards, members=None):
+        n = len(rewards)
+        return pd.DataFrame({"env": "MsPacmanNoFrameskip-v4", "method": method, "seed": 0, "inference": inference,
+                             "deterministic": deterministic, "member": members if members is not None else [np.nan] * n,
+                             "reward": rewards, "length": [100 + int(r) for r in rewards]})
+
+    episodes = pd.concat([group("baseline", "single", True, [210.0] * 4),        # one game replayed 4 times
+                          group("baseline", "single", False, [1.0, 2.0, 3.0, 4.0]),
+                          group("ensemble", "single", True, [5.0] * 4, [0, 1, 0, 1])],  # each member replays its own
+                         ignore_index=True)
+    repeated = repeated_games(episodes)
+    assert repeated[["method", "actions", "episodes", "distinct_games"]].values.tolist() == [
+        ["baseline", "deterministic", 4, 1], ["ensemble", "deterministic", 4, 2]]
+    note = repeated_games_note(repeated, episodes)
+    assert note.startswith("2 of 3 run x mode groups replayed a game (deterministic actions")
+    assert "baseline seed 0, single inference, deterministic actions, 1 distinct game(s) in 4 episodes" in note
+    distinct = episodes[episodes["deterministic"] == False]  # noqa: E712
+    assert repeated_games(distinct).empty
+    assert repeated_games_note(repeated_games(distinct), distinct).startswith("Every one of the 1 run x mode groups")
