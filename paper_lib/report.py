@@ -278,6 +278,8 @@ def counts_note(long: pd.DataFrame) -> str:
 
 #: What makes two evaluation episodes the same game, as far as the episode files can tell.
 GAME_KEYS = ["member", "reward", "length"]
+#: One run playing in one action mode: the groups whose episodes `repeated_games` compares.
+RUN_MODE_KEYS = ["env", "method", "seed", "inference", "deterministic"]
 
 
 def repeated_games(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -287,9 +289,8 @@ def repeated_games(episodes: pd.DataFrame) -> pd.DataFrame:
     first state (MsPacman waits through its intro), so a deterministic policy can replay one game in every episode:
     its std over episodes is then 0 and its mean one game's score. Only groups with a repeated game are returned.
     """
-    keys = ["env", "method", "seed", "inference", "deterministic"]
     games = episodes.assign(member=episodes["member"].fillna(-1)) if "member" in episodes else episodes.assign(member=-1)
-    counts = games.groupby(keys).apply(lambda g: pd.Series({"episodes": len(g),
+    counts = games.groupby(RUN_MODE_KEYS).apply(lambda g: pd.Series({"episodes": len(g),
                                                              "distinct_games": len(g[GAME_KEYS].drop_duplicates())}),
                                        include_groups=False).reset_index()
     counts["actions"] = np.where(counts.pop("deterministic"), "deterministic", "sampled")
@@ -299,7 +300,7 @@ def repeated_games(episodes: pd.DataFrame) -> pd.DataFrame:
 
 def repeated_games_note(repeated: pd.DataFrame, episodes: pd.DataFrame) -> str:
     """One sentence: how many run x mode groups replay games, the fewest distinct ones, and which action modes."""
-    groups = episodes.groupby(["env", "method", "seed", "inference", "deterministic"]).ngroups
+    groups = episodes.groupby(RUN_MODE_KEYS).ngroups
     if repeated.empty:
         return f"Every one of the {groups} run x mode groups played distinct games in all its episodes."
     fewest = repeated.sort_values("distinct_games").iloc[0]
