@@ -99,11 +99,10 @@ def _scratch_config(cfg: RunConfig, scratch: Path, run: Run) -> RunConfig:
     return aside
 
 
-def verify_run(cfg: RunConfig, run: Run, stages: tuple[str, ...] = ("score",),
-               scratch: Path | None = None) -> pd.DataFrame:
+def verify_run(cfg: RunConfig, run: Run, stages: tuple[str, ...] = ("score",)) -> pd.DataFrame:
     """Recompute `stages` of one committed run aside and compare each file: one row per file."""
     rows = []
-    with tempfile.TemporaryDirectory(prefix="verify-", dir=scratch) as tmp:
+    with tempfile.TemporaryDirectory(prefix="verify-") as tmp:
         aside = _scratch_config(cfg, Path(tmp), run)
         for stage in stages:
             started = time.perf_counter()
