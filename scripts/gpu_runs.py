@@ -4,14 +4,20 @@ A lent machine (16 cores, one GPU) is held for minutes, and one call returns at 
 (64 MiB in all). So, on the machine:
 
     python scripts/gpu_runs.py launch WORK ENV METHOD SEED [ENV METHOD SEED ...]   # returns at once
+    python scripts/gpu_runs.py launch WORK --queue FILE          # or the paper_lib.train lines of a queue file
     python scripts/gpu_runs.py watch WORK --until 540 --stop     # progress every 30 s, then stop the runs
     python scripts/gpu_runs.py pack WORK --out $OUT               # again, in quick calls, until none is left
 
 `launch` starts each run as `python -m paper_lib.train ... --device cuda --env-processes` in its own
-process session, so it outlives the call. `pack` sends what the runs reached: a finished run as its
-checkpoint folder (`ENV_METHOD_seedN.tar.gz`, ~4 MB), an unfinished one as its resume point (~20 MB
-with Adam's moments, in 15 MiB parts `ENV_METHOD_seedN.resume.tar.partNN`), as many as one call returns.
-Here, `unpack` puts them in place: checkpoints into the repository, resume points under the resume
+process session, so it outlives the call. `--queue` takes the lines the queue commands print
+(`python -m paper_lib.pipeline_status queue`, `python -m paper_lib.ensembles queue`), so any run goes
+with its own checkpoint folder and arguments (an independent ensemble member's `--timesteps 250000
+--hp algo.n_epochs=16`, an `own` run's `--assignment own`). `pack` sends what the runs reached: a
+finished run as its checkpoint folder (~4 MB), an unfinished one as its resume point (~20 MB with
+Adam's moments, ~80 MB for an Atari Ensemble), each a tar cut into 15 MiB parts
+(`NAME.{checkpoint,resume}.tar.partIIofNN`, NAME the folder below results/), as many parts as one call
+returns; a tar that does not fit continues in the next call. Here, `unpack` joins the parts of all the
+calls' folders and puts them in place: checkpoints into the repository, resume points under the resume
 root, where `scripts/train_queue.sh` continues them on this machine's CPUs (config.json's `segments`
 then says which steps ran where).
 
@@ -30,6 +36,7 @@ import io
 import json
 import os
 import pickle
+import re
 import shutil
 import signal
 import subprocess
@@ -43,6 +50,7 @@ CHECK_EVERY = 30
 RESUME_EVERY = 25_000  # finer progress readings than the default 50k
 MAX_FILES, MAX_BYTES = 8, 60 * 2**20  # what one call of the lent machine returns (64 MiB), with room
 PART_BYTES = 15 * 2**20
+PART_NAME = re.compile(r"(?P<name>.+)\.(?P<kind>checkpoint|resume)\.tar\.part(?P<index>\d+)of(?P<total>\d+)")
 
 
 def state_file(work: Path) -> Path:
@@ -58,11 +66,42 @@ def save_state(work: Path, state: dict) -> None:
 
 
 def checkpoint_dir(run: dict) -> Path:
-    return PROFILE_DIR / run["env"] / run["method"] / f"seed{run['seed']}"
+    """The run's checkpoint folder, relative to the repository (as on its queue line)."""
+    return Path(run["folder"])
 
 
 def run_name(run: dict) -> str:
-    return f"{run['env']}_{run['method']}_seed{run['seed']}"
+    """A file name unique across trees: the folder below results/, without the `checkpoints` level."""
+    parts = [p for p in checkpoint_dir(run).parts if p not in ("results", "checkpoints")]
+    return "_".join(parts)
+
+
+def main_matrix_run(env_id: str, method: str, seed: int) -> dict:
+    """A run of the main matrix, at its usual folder with the env's own settings."""
+    return {"env": env_id, "method": method, "seed": seed,
+            "folder": str(PROFILE_DIR / env_id / method / f"seed{seed}"), "extra": []}
+
+
+def queued_run(line: str) -> dict:
+    """A run from a queue line `... -m paper_lib.train ENV METHOD SEED FOLDER [ARGS ...]`."""
+    words = line.split()
+    try:
+        env_id, method, seed, folder, *extra = words[words.index("paper_lib.train") + 1:]
+        seed_number = int(seed)
+    except ValueError:
+        raise ValueError(f"not a queue line (`... -m paper_lib.train ENV METHOD SEED FOLDER [ARGS]`): {line!r}; "
+                         "take lines from `python -m paper_lib.pipeline_status queue` or "
+                         "`python -m paper_lib.ensembles queue`") from None
+    if Path(folder).is_absolute():
+        raise ValueError(f"queue line with an absolute checkpoint folder {folder!r}: the folder must be relative to "
+                         "the repository, as the queue commands print it")
+    return {"env": env_id, "method": method, "seed": seed_number, "folder": folder, "extra": extra}
+
+
+def read_queue(path: Path) -> list[dict]:
+    """The runs of a queue file's lines not yet marked (lines starting with `#` are done or taken)."""
+    lines = [line.strip() for line in path.read_text().splitlines()]
+    return [queued_run(line) for line in lines if line and not line.startswith("#")]
 
 
 def resume_point(work: Path, run: dict) -> Path:
@@ -70,9 +109,12 @@ def resume_point(work: Path, run: dict) -> Path:
     return work / "resume" / (work / checkpoint_dir(run)).relative_to("/")
 
 
-def launch(work: Path, runs: list[tuple[str, str, int]], repo: Path, device: str = "cuda",
+def launch(work: Path, runs: list[dict], repo: Path, device: str = "cuda",
            timesteps: int | None = None, resume_every: int = RESUME_EVERY) -> None:
-    """Start every run in its own session and record its pid (beside the runs of an earlier launch)."""
+    """Start every run in its own session and record its pid (beside the runs of an earlier launch).
+
+    ``timesteps``, when given, replaces the runs' budgets (their own `--timesteps` included).
+    """
     work = work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     code = work / "code"
@@ -82,9 +124,10 @@ def launch(work: Path, runs: list[tuple[str, str, int]], repo: Path, device: str
     env = {**os.environ, "PAPER_LIB_RESUME_ROOT": str(work / "resume"), "OMP_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(filter(None, [str(code), os.environ.get("PYTHONPATH")]))}
     state = load_state(work) if state_file(work).is_file() else {"launched": time.time(), "runs": []}
-    for env_id, method, seed in runs:
-        run = {"env": env_id, "method": method, "seed": seed, "status": "running"}
-        cmd = [sys.executable, "-m", "paper_lib.train", env_id, method, str(seed), str(work / checkpoint_dir(run)),
+    for queued in runs:
+        run = {**queued, "status": "running"}
+        cmd = [sys.executable, "-m", "paper_lib.train", run["env"], run["method"], str(run["seed"]),
+               str(work / checkpoint_dir(run)), *run["extra"],
                "--device", device, "--env-processes", "--resume-every", str(resume_every)]
         if timesteps is not None:
             cmd += ["--timesteps", str(timesteps)]
@@ -93,7 +136,7 @@ def launch(work: Path, runs: list[tuple[str, str, int]], repo: Path, device: str
                                 stdin=subprocess.DEVNULL, start_new_session=True)
         run["pid"] = proc.pid
         state["runs"].append(run)
-        print(f"started {env_id} {method} seed {seed} (pid {proc.pid})", flush=True)
+        print(f"started {run_name(run)} {' '.join(run['extra'])} (pid {proc.pid})", flush=True)
     save_state(work, state)
 
 
@@ -155,7 +198,12 @@ def watch(work: Path, until: float, stop_after: bool) -> None:
 
 
 def pack(work: Path, out: Path, max_files: int = MAX_FILES, max_bytes: int = MAX_BYTES) -> None:
-    """Pack the next runs not yet sent, as many as one call returns; print what is left."""
+    """Send the next parts not yet sent, as many as one call returns; print what is left.
+
+    Each stopped or finished run is one tar (its checkpoint folder, or its resume point) cut into
+    PART_BYTES parts named `NAME.KIND.tar.partIIofNN`; a tar larger than one call (an Atari Ensemble's
+    resume point is ~80 MB) continues in the next call.
+    """
     work = work.resolve()
     state = load_state(work)
     out.mkdir(parents=True, exist_ok=True)
@@ -164,53 +212,69 @@ def pack(work: Path, out: Path, max_files: int = MAX_FILES, max_bytes: int = MAX
         if run.get("packed") or run["status"] == "running":
             continue
         finished = run["status"] == "finished"
-        folder = work / checkpoint_dir(run) if finished else resume_point(work, run)
+        kind, folder = ("checkpoint", work / checkpoint_dir(run)) if finished else ("resume", resume_point(work, run))
         if not (folder / ("config.json" if finished else "state.pkl")).is_file():
             run["packed"] = "nothing"  # stopped before its first resume point
             continue
-        need = sum(f.stat().st_size for f in folder.iterdir())
-        parts = 1 if finished else -(-need // PART_BYTES)
-        if files + parts > max_files or size + need > max_bytes:
-            break
-        if finished:
-            with tarfile.open(out / f"{run_name(run)}.tar.gz", "w:gz") as tar:
+        blob = work / "packs" / f"{run_name(run)}.{kind}.tar"
+        if not blob.is_file():  # made once: parts sent by earlier calls stay valid
+            blob.parent.mkdir(exist_ok=True)
+            with tarfile.open(blob, "w") as tar:
                 tar.add(folder, arcname=str(checkpoint_dir(run)))
-        else:
-            data = io.BytesIO()
-            with tarfile.open(fileobj=data, mode="w") as tar:
-                tar.add(folder, arcname=str(checkpoint_dir(run)))
-            blob = data.getvalue()
-            for i in range(0, len(blob), PART_BYTES):
-                (out / f"{run_name(run)}.resume.tar.part{i // PART_BYTES:02d}").write_bytes(blob[i:i + PART_BYTES])
-        files, size = files + parts, size + need
-        run["packed"] = True
+        total = -(-blob.stat().st_size // PART_BYTES)
+        sent = run.get("parts_sent", 0)
+        with open(blob, "rb") as f:
+            while sent < total:
+                f.seek(sent * PART_BYTES)
+                part = f.read(PART_BYTES)
+                if files + 1 > max_files or size + len(part) > max_bytes:
+                    break
+                (out / f"{blob.name}.part{sent + 1:02d}of{total:02d}").write_bytes(part)
+                sent, files, size = sent + 1, files + 1, size + len(part)
+        run["parts_sent"] = sent
         what = "checkpoint" if finished else f"resume point at step {progress(work, run)}"
+        if sent < total:
+            print(f"packed {run_name(run)}: {what}, {sent} of {total} parts (the rest in the next call)", flush=True)
+            break
+        run["packed"] = True
         print(f"packed {run_name(run)}: {what}", flush=True)
     save_state(work, state)
     left = [run_name(r) for r in state["runs"] if not r.get("packed")]
     print(f"left to pack: {left or 'none'}", flush=True)
 
 
-def unpack(folders: list[Path], repo: Path, resume_root: Path) -> None:
-    """Here: checkpoints into the repository, resume points (parts joined) under the resume root."""
-    parts: dict[str, list[Path]] = {}
+def joined_parts(folders: list[Path]) -> dict[tuple[str, str], bytes]:
+    """(run name, kind) -> the tar its parts make, refusing a run whose parts are not all here."""
+    parts: dict[tuple[str, str], dict[int, Path]] = {}
+    totals: dict[tuple[str, str], int] = {}
     for folder in folders:
-        for path in sorted(folder.iterdir()):
-            if path.name.endswith(".tar.gz"):
-                with tarfile.open(path) as tar:
-                    tar.extractall(repo, filter="data")
-                print(f"checkpoint {path.name} -> {repo}")
-            elif ".resume.tar.part" in path.name:
-                parts.setdefault(path.name.split(".resume.tar.part")[0], []).append(path)
-    target = resume_root / repo.resolve().relative_to("/")
-    for name, pieces in parts.items():
-        blob = b"".join(p.read_bytes() for p in sorted(pieces, key=lambda p: p.name))
+        for path in folder.iterdir():
+            match = PART_NAME.fullmatch(path.name)
+            if match:
+                key = (match["name"], match["kind"])
+                parts.setdefault(key, {})[int(match["index"])] = path
+                totals[key] = int(match["total"])
+    joined = {}
+    for key, pieces in parts.items():
+        missing = sorted(set(range(1, totals[key] + 1)) - set(pieces))
+        if missing:
+            raise SystemExit(f"error: {key[0]} ({key[1]}) lacks parts {missing} of {totals[key]}; give every folder "
+                             "its pack calls came back to")
+        joined[key] = b"".join(pieces[i].read_bytes() for i in sorted(pieces))
+    return joined
+
+
+def unpack(folders: list[Path], repo: Path, resume_root: Path) -> None:
+    """Here: checkpoints into the repository, resume points under the resume root; never over existing files."""
+    joined = joined_parts(folders)
+    for (name, kind), blob in sorted(joined.items()):
+        target = repo if kind == "checkpoint" else resume_root / repo.resolve().relative_to("/")
         with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
             if any((target / member).is_file() for member in tar.getnames()):
-                raise SystemExit(f"error: a resume point of {name} already exists under {target}; "
+                raise SystemExit(f"error: a {kind} of {name} already exists under {target}; "
                                  "move it away first (unpacking would overwrite it)")
             tar.extractall(target, filter="data")
-        print(f"resume point {name} -> {target}")
+        print(f"{kind} {name} -> {target}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -218,7 +282,8 @@ def main(argv: list[str] | None = None) -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     start = sub.add_parser("launch")
     start.add_argument("work", type=Path)
-    start.add_argument("runs", nargs="+", help="ENV METHOD SEED triples")
+    start.add_argument("runs", nargs="*", help="ENV METHOD SEED triples (main-matrix runs)")
+    start.add_argument("--queue", type=Path, help="a queue file: its unmarked paper_lib.train lines")
     start.add_argument("--device", default="cuda", help="torch device (cpu for a dry run here)")
     start.add_argument("--timesteps", type=int, default=None, help="training steps (default: the env's budget)")
     look = sub.add_parser("watch")
@@ -234,10 +299,18 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     repo = Path(__file__).resolve().parent.parent
     if args.command == "launch":
-        if len(args.runs) % 3:
-            parser.error("give runs as ENV METHOD SEED triples")
-        triples = [(args.runs[i], args.runs[i + 1], int(args.runs[i + 2])) for i in range(0, len(args.runs), 3)]
-        launch(args.work, triples, repo, args.device, args.timesteps)
+        if len(args.runs) % 3 or not (args.runs or args.queue):
+            parser.error("give runs as ENV METHOD SEED triples, or --queue FILE")
+        try:
+            runs = [main_matrix_run(args.runs[i], args.runs[i + 1], int(args.runs[i + 2]))
+                    for i in range(0, len(args.runs), 3)]
+            runs += read_queue(args.queue) if args.queue else []
+        except ValueError as err:
+            parser.error(f"{err} (runs are ENV METHOD SEED triples with an integer seed)"
+                         if "invalid literal" in str(err) else str(err))
+        except OSError as err:
+            parser.error(f"cannot read the queue file: {err}")
+        launch(args.work, runs, repo, args.device, args.timesteps)
     elif args.command == "watch":
         watch(args.work, args.until, args.stop)
     elif args.command == "pack":
