@@ -177,21 +177,41 @@ def test_two_worker_processes_share_a_sqlite_study(root):
     _two_workers(root, f"sqlite:///{root / 'two.db'}", "sqlite")
 
 
+def _until_training(root: Path, worker: subprocess.Popen, log: Path, url: str) -> None:
+    """Wait until trial 0 has drawn its settings and is training."""
+    n_params = len(load_study_config(root / "params.yaml", "tiny").study(STUDY).space)
+    deadline = time.monotonic() + 240
+    while True:
+        assert worker.poll() is None and time.monotonic() < deadline, log.read_text()[-3000:]
+        try:
+            running = [t for t in _trials(url) if t.state == TrialState.RUNNING and len(t.params) == n_params]
+        except Exception:  # the database or the study is not there yet
+            running = []
+        if running:
+            return
+        time.sleep(0.2)
+
+
+def test_a_worker_stopped_by_sigterm_queues_its_trial_again_at_once(root):
+    """What a lease's `timeout -s TERM` relies on: the cut trial is FAIL, and a WAITING copy has its settings."""
+    url = f"sqlite:///{root / 'term.db'}"
+    worker = _worker(root, root / "term.log", "--study", STUDY, "--storage", url, "--trials", "2")
+    try:
+        _until_training(root, worker, root / "term.log", url)
+        worker.send_signal(signal.SIGTERM)
+        assert worker.wait(timeout=60) == 130, (root / "term.log").read_text()[-3000:]
+    finally:
+        worker.kill()
+    cut, *rest = _trials(url)
+    assert cut.state == TrialState.FAIL and "fail_reason" not in cut.user_attrs
+    assert [(t.state, t.params, t.system_attrs.get("failed_trial")) for t in rest] == [(TrialState.WAITING, cut.params, 0)]
+
+
 def test_a_worker_killed_mid_trial_leaves_a_failed_trial_that_is_retried(root):
     url = f"sqlite:///{root / 'kill.db'}"
-    n_params = len(load_study_config(root / "params.yaml", "tiny").study(STUDY).space)
     first = _worker(root, root / "kill-0.log", "--study", STUDY, "--storage", url, "--trials", "2")
-    deadline = time.monotonic() + 240
     try:
-        while True:  # until trial 0 has drawn its settings and is training
-            assert first.poll() is None and time.monotonic() < deadline, (root / "kill-0.log").read_text()[-3000:]
-            try:
-                running = [t for t in _trials(url) if t.state == TrialState.RUNNING and len(t.params) == n_params]
-            except Exception:  # the database or the study is not there yet
-                running = []
-            if running:
-                break
-            time.sleep(0.2)
+        _until_training(root, first, root / "kill-0.log", url)
         os.kill(first.pid, signal.SIGKILL)
         first.wait(timeout=30)
     finally:
