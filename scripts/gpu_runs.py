@@ -311,11 +311,17 @@ def main(argv: list[str] | None = None) -> None:
         except OSError as err:
             parser.error(f"cannot read the queue file: {err}")
         launch(args.work, runs, repo, args.device, args.timesteps)
+    elif args.command in ("watch", "pack") and not state_file(args.work).is_file():
+        parser.error(f"{args.work} holds no launched runs ({state_file(args.work).name} is missing); "
+                     "give the WORK folder of `launch`")
     elif args.command == "watch":
         watch(args.work, args.until, args.stop)
     elif args.command == "pack":
         pack(args.work, args.out)
     else:
+        absent = [str(f) for f in args.folders if not f.is_dir()]
+        if absent:
+            parser.error(f"not a folder: {', '.join(absent)}; give the folders the pack calls' files came back to")
         unpack(args.folders, repo, args.resume_root)
 
 

@@ -80,15 +80,23 @@ def test_a_finished_and_a_stopped_run_come_back_and_the_stopped_one_resumes_here
     assert [(s["from_step"], s["env_processes"]) for s in segments] == [(0, True), (reached, False)]
 
 
-def test_a_line_that_is_not_a_training_command_is_one_error_naming_the_queue_commands(tmp_path):
+def test_bad_inputs_are_one_error_each_and_write_nothing(tmp_path):
+    def gpu_runs(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(REPO / "scripts" / "gpu_runs.py"), *args],
+                              capture_output=True, text=True, timeout=60)
+
     queue = tmp_path / "queue.txt"
     queue.write_text("python -m paper_lib.train CartPole-v1 baseline zero results/x\n")
-    done = subprocess.run([sys.executable, str(REPO / "scripts" / "gpu_runs.py"), "launch", str(tmp_path / "work"),
-                           "--queue", str(queue)], capture_output=True, text=True, timeout=60)
+    done = gpu_runs("launch", str(tmp_path / "work"), "--queue", str(queue))
     assert done.returncode == 2 and "paper_lib.pipeline_status queue" in done.stderr, done.stderr
-    assert not (tmp_path / "work").exists()
-    absolute = tmp_path / "absolute.txt"
-    absolute.write_text("python -m paper_lib.train CartPole-v1 baseline 0 /tmp/elsewhere\n")
-    done = subprocess.run([sys.executable, str(REPO / "scripts" / "gpu_runs.py"), "launch", str(tmp_path / "work"),
-                           "--queue", str(absolute)], capture_output=True, text=True, timeout=60)
+    queue.write_text("python -m paper_lib.train CartPole-v1 baseline 0 /tmp/elsewhere\n")
+    done = gpu_runs("launch", str(tmp_path / "work"), "--queue", str(queue))
     assert done.returncode == 2 and "relative to the repository" in done.stderr, done.stderr
+    done = gpu_runs("launch", str(tmp_path / "work"), "CartPole-v1", "baseline", "zero")
+    assert done.returncode == 2 and "integer seed" in done.stderr, done.stderr
+    assert not (tmp_path / "work").exists()
+    done = gpu_runs("pack", str(tmp_path), "--out", str(tmp_path / "out"))
+    assert done.returncode == 2 and "no launched runs" in done.stderr, done.stderr
+    done = gpu_runs("unpack", str(tmp_path / "absent"), "--resume-root", str(tmp_path / "resume"))
+    assert done.returncode == 2 and "not a folder" in done.stderr, done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["queue.txt"]
