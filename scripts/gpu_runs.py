@@ -25,7 +25,9 @@ The runs import a copy of paper_lib and params.yaml (WORK/code): a later call re
 Measured on leases (Atari, 8 envs a run): H100, 2026-11-24, envs stepped in the run's own process:
 14 runs at once ~370 steps/s each, 5 at once ~520. H200, 2026-11-26, `--env-processes`: 8 runs at once
 ~850 steps/s each (MC Dropout ~650), 4 at once the same (the bound is each run's own loop, not the
-cores), the first resume point after ~90 s of start-up. A 1e6-step Atari run needs ~20 min: more than
+cores), the first resume point after ~90 s of start-up. H100, 2026-11-26, `--env-processes`: the ten Atari
+independent-ensemble members (16 epochs) at once ~280 steps/s each, 128,000 steps in 520 s; ten ~20 MB
+resume points took four more calls (~20 s each) to come back. A 1e6-step Atari run needs ~20 min: more than
 one call (10 min), so runs come back as resume points and finish here.
 """
 
