@@ -256,10 +256,22 @@ def _papermill(notebook: str, out: Path, root: Path) -> None:
 
 
 def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
+    # first mid-sweep, as `make reproduce` finds a sweep of hours: one study done, the others not begun
+    run_study(cfg, STUDY, sampler_seed=0, log=lambda line: None)
+    _papermill("09_study.ipynb", root / "09_partial.ipynb", root)
+    results = root / "results" / "tiny"
+    progress = pd.read_csv(results / "tables" / "study" / "study_progress.csv").set_index("study")
+    assert progress.loc[STUDY, "status"] == "done" and progress.loc[STUDY, "complete"] == 2
+    assert (progress.drop(STUDY)["status"] == "not started").all() and len(progress) == len(cfg.studies)
+    verdict = pd.read_csv(results / "tables" / "study" / "study_reading.csv")
+    assert (verdict["largest_hypervolume"] == analysis.NOT_READ).all(), "no env is read before all its studies ran"
+    assert "1 of 4 studies at their trial target" in (results / "tables" / "study" / "study_summary.md").read_text()
+
     for name in cfg.studies:  # every tiny study to its target, in this process (the sweep's DVC stage)
         run_study(cfg, name, sampler_seed=0, log=lambda line: None)
     _papermill("09_study.ipynb", root / "09.ipynb", root)
-    results = root / "results" / "tiny"
+    verdict = pd.read_csv(results / "tables" / "study" / "study_reading.csv")
+    assert verdict["largest_hypervolume"].isin({"baseline", "masksembles"}).all()  # every env read: tiny's methods
     trials = pd.read_csv(results / "tables" / "study" / "study_trials.csv")
     assert set(trials["study"]) == set(cfg.studies)
     assert (trials.groupby("study")["state"].apply(lambda s: (s == "COMPLETE").sum()) == 2).all()

@@ -22,16 +22,30 @@ KEYS = ["algo", "env", "method"]
 CHANCE_AUROC = 0.5
 
 
-def load_trials(storage: str | optuna.storages.BaseStorage, names: Iterable[str] | None = None) -> pd.DataFrame:
-    """One row per trial of every study in `storage` (or of `names`): state, objectives, seed, settings, scores."""
+#: The columns of `load_trials` that do not depend on the search space (an empty storage still has them).
+TRIAL_COLUMNS = ["study", *KEYS, "number", "state", "reward", "auroc", "seed", "retried_from", "fail_reason",
+                 "surplus", "worker", "seconds", "reward_std", "final_training_reward", "auroc_measure", "config"]
+#: A study's `progress` status once it holds its target of COMPLETE trials.
+DONE = "done"
+#: What `reading` says for an (algorithm, env) whose studies are not all done.
+NOT_READ = "not read yet"
+
+
+def load_trials(storage: str | optuna.storages.BaseStorage, names: Iterable[str] | None = None,
+                missing_ok: bool = False) -> pd.DataFrame:
+    """One row per trial of every study in `storage` (or of `names`): state, objectives, seed, settings, scores.
+
+    A name the storage lacks is an error, unless `missing_ok`: a sweep of hours is read while it runs, and the
+    studies it has not reached yet simply contribute no rows (`progress` says which).
+    """
     stored = set(optuna.get_all_study_names(storage=storage))
     names = list(names) if names is not None else sorted(stored)
     missing = [name for name in names if name not in stored]
-    if missing:
+    if missing and not missing_ok:
         raise ValueError(f"the storage has no study {missing[0]!r} (nor {len(missing) - 1} more); run its trials first: "
                          f"python -m paper_lib.study.worker --study {missing[0]}  (or --all)")
     rows = []
-    for name in names:
+    for name in (name for name in names if name in stored):
         algo, env_id, method = parse_study_name(name)
         study = optuna.load_study(study_name=name, storage=storage)
         for t in study.get_trials(deepcopy=False):
@@ -47,7 +61,27 @@ def load_trials(storage: str | optuna.storages.BaseStorage, names: Iterable[str]
                    **{k: v for k, v in attrs.items() if k.startswith("auroc_") and k != "auroc_measure"},
                    **t.params}
             rows.append(row)
+    return pd.DataFrame(rows) if rows else pd.DataFrame(columns=TRIAL_COLUMNS)
+
+
+def progress(trials: pd.DataFrame, targets: dict[str, int]) -> pd.DataFrame:
+    """Per configured study (name -> target of COMPLETE trials): its trials so far and whether it is done."""
+    rows = []
+    for name, target in targets.items():
+        mine = trials[trials["study"] == name]
+        n_complete = int((mine["state"] == "COMPLETE").sum())
+        status = DONE if n_complete >= target else ("in progress" if len(mine) else "not started")
+        rows.append({"study": name, **dict(zip(KEYS, parse_study_name(name))), "target": target,
+                     "complete": n_complete, "failed": int((mine["state"] == "FAIL").sum()), "status": status})
     return pd.DataFrame(rows)
+
+
+def progress_caption(progress_table: pd.DataFrame) -> str:
+    """How far the sweep is, for every caption: studies at their target and COMPLETE trials of all targets."""
+    done = int((progress_table["status"] == DONE).sum())
+    trials = int(progress_table[["complete", "target"]].min(axis=1).sum())
+    return (f"{done} of {len(progress_table)} studies at their trial target, {trials} of "
+            f"{int(progress_table['target'].sum())} trials")
 
 
 def complete(df: pd.DataFrame) -> pd.DataFrame:
@@ -155,15 +189,31 @@ def ablation_table(rows: pd.DataFrame, axis: str) -> pd.DataFrame:
     return stats.reset_index()
 
 
-def reading(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per (algorithm, env): which method has the most performant configurations and the largest hypervolume."""
+def reading(summary: pd.DataFrame, progress_table: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Per (algorithm, env): which method has the most performant configurations and the largest hypervolume.
+
+    With `progress_table`, an (algorithm, env) whose studies are not all done is listed but not read: a method
+    whose study has not run would lose by default, and a half-run study by having fewer trials.
+    """
+    pairs = summary[["algo", "env"]] if progress_table is None else progress_table[["algo", "env"]]
     rows = []
-    for (algo, env), group in summary.groupby(["algo", "env"]):
-        most = group.loc[group["performant"].idxmax()]
-        tied = group[group["performant"] == most["performant"]]["method"].tolist()
-        largest = group.loc[group["hypervolume"].idxmax()]
-        rows.append({"algo": algo, "env": env, "most_performant": ", ".join(tied),
-                     "performant": int(most["performant"]), "largest_hypervolume": largest["method"],
-                     "hypervolume": float(largest["hypervolume"])})
+    for algo, env in sorted(set(map(tuple, pairs.to_numpy()))):
+        group = summary[(summary["algo"] == algo) & (summary["env"] == env)]
+        if progress_table is None:
+            done = total = len(group)
+        else:
+            mine = progress_table[(progress_table["algo"] == algo) & (progress_table["env"] == env)]
+            done, total = int((mine["status"] == DONE).sum()), len(mine)
+        row = {"algo": algo, "env": env, "studies_done": f"{done} of {total}"}
+        if done < total:
+            row.update(most_performant=NOT_READ, performant="", largest_hypervolume=NOT_READ,
+                       hypervolume="")
+        else:
+            most = group.loc[group["performant"].idxmax()]
+            largest = group.loc[group["hypervolume"].idxmax()]
+            row.update(most_performant=", ".join(group[group["performant"] == most["performant"]]["method"]),
+                       performant=int(most["performant"]), largest_hypervolume=largest["method"],
+                       hypervolume=float(largest["hypervolume"]))
+        rows.append(row)
     return pd.DataFrame(rows)
 
