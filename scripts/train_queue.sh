@@ -4,8 +4,14 @@
 # A line is claimed under a lock and marked "#started" when taken; it becomes "#done" or
 # "#failed(rc)" when it ends, so a queue can be appended to while it runs and resumed after
 # a kill (re-queue "#started" lines by removing the mark: training resumes from its resume point).
-# Runs at low priority (nice 10) so tests and notebooks stay responsive.
+# Runs at low priority (nice 10) so tests and notebooks stay responsive. Started in a session of its
+# own (`setsid scripts/train_queue.sh ...`), it also lowers that session's autogroup to nice 10: Linux
+# shares the CPU fairly between sessions first, so nice alone would still give a test run in another
+# session only its session's share.
 set -u
+if [ -w /proc/self/autogroup ] && [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ]; then
+  echo 10 > /proc/self/autogroup  # only as a session leader: never lower the caller's terminal session
+fi
 queue=$1
 workers=${2:-2}
 lock="$queue.lock"
