@@ -7,9 +7,9 @@
 # Runs at low priority (nice 10) so tests and notebooks stay responsive. Started in a session of its
 # own (`setsid scripts/train_queue.sh ...`), it also lowers that session's autogroup to nice 10: Linux
 # shares the CPU fairly between sessions first, so nice alone would still give a test run in another
-# session only its session's share.
+# session only its session's share. (A kernel with autogroups off reads the file empty: nothing to do.)
 set -u
-if [ -w /proc/self/autogroup ] && [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ]; then
+if [ -w /proc/self/autogroup ] && [ -n "$(cat /proc/self/autogroup)" ] && [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ]; then
   echo 10 > /proc/self/autogroup  # only as a session leader: never lower the caller's terminal session
 fi
 queue=$1
