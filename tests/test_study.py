@@ -147,6 +147,17 @@ def test_pareto_front_and_hypervolume():
     assert analysis.hypervolume_2d(np.array([[1.0, 0.4]]), (0.0, 0.5)) == 0.0
 
 
+def test_reading_names_the_leader_overall_and_among_member_methods():
+    # HalfCheetah as the first sweep read it: the baseline's member-free detector leads, Masksembles leads the members
+    summary = pd.DataFrame({"algo": "ppo", "env": "HalfCheetah-v5",
+                            "method": ["baseline", "masksembles", "ensemble", "mc_dropout"],
+                            "performant": [5, 4, 1, 4], "hypervolume": [0.50, 0.25, 0.27, 0.10]})
+    (row,) = analysis.reading(summary).to_dict("records")
+    assert (row["most_performant"], row["performant"], row["largest_hypervolume"]) == ("baseline", 5, "baseline")
+    assert (row["most_performant_members"], row["performant_members"]) == ("masksembles, mc_dropout", 4)
+    assert (row["largest_hypervolume_members"], row["hypervolume_members"]) == ("ensemble", 0.27)
+
+
 # ------------------------------------------------------------------------------------------ trials and workers
 
 
@@ -272,6 +283,7 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     _papermill("09_study.ipynb", root / "09.ipynb", root)
     verdict = pd.read_csv(results / "tables" / "study" / "study_reading.csv")
     assert verdict["largest_hypervolume"].isin({"baseline", "masksembles"}).all()  # every env read: tiny's methods
+    assert (verdict["largest_hypervolume_members"] == "masksembles").all()  # tiny's only member method
     trials = pd.read_csv(results / "tables" / "study" / "study_trials.csv")
     assert set(trials["study"]) == set(cfg.studies)
     assert (trials.groupby("study")["state"].apply(lambda s: (s == "COMPLETE").sum()) == 2).all()
