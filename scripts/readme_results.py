@@ -161,6 +161,15 @@ def own_vs_shared_part(tables: Path) -> str:
     return f"### Does keeping each member on-policy help? `own` vs `shared` (notebook 11, beyond the paper)\n\n{table}\n\n{reading}"
 
 
+def study_part(tables: Path) -> str:
+    """Notebook 9's reading as it stands: the sweep's progress (in the caption) and each env's leaders."""
+    return (f"### The study so far: the most performant configurations (notebook 9)\n\n"
+            f"{(tables / 'study' / 'study_reading.md').read_text().strip()}\n\n"
+            f"An env is read once all its studies reached their trial target; `_members` columns leave out the "
+            f"baseline, whose member-free detector is the reference point. Per-study counts: "
+            f"`{tables / 'study' / 'study_summary.md'}`.")
+
+
 def paste(readme: str, start: str, end: str, body: str) -> str:
     """`readme` with the text between the `start` and `end` markers replaced by `body`."""
     head, _, rest = readme.partition(start)
@@ -191,6 +200,8 @@ def main(profile: str | None = None) -> None:
         parts.append(value_level_part(tables))
     if (tables / "ensembles" / "ensembles_own_vs_shared.md").exists():
         parts.append(own_vs_shared_part(tables))
+    if (tables / "study" / "study_reading.md").exists():
+        parts.append(study_part(tables))
     readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
     bench = Path("results/bench/bench.csv")
     if bench.exists():
