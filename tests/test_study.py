@@ -147,6 +147,18 @@ def test_pareto_front_and_hypervolume():
     assert analysis.hypervolume_2d(np.array([[1.0, 0.4]]), (0.0, 0.5)) == 0.0
 
 
+def test_summary_shows_a_reward_objective_that_hardly_separates():
+    # Ant at a short budget: one configuration falls over, the others stand still for ~1000 (the healthy bonus)
+    trials = pd.DataFrame({"algo": "ppo", "env": "Ant-v5", "method": ["baseline"] * 4 + ["masksembles"] * 2,
+                           "state": ["COMPLETE"] * 5 + ["FAIL"], "retried_from": np.nan,
+                           "reward": [-2000.0, 990.0, 1000.0, 995.0, 998.0, np.nan],
+                           "auroc": [0.9, 0.8, 0.7, 0.95, 0.6, np.nan]})
+    summary = analysis.study_summary(trials, 0.5, 0.75).set_index("method")
+    assert summary.loc["baseline", "median_reward"] == pytest.approx(992.5)
+    assert summary.loc["baseline", "median_reward_norm"] == pytest.approx(2992.5 / 3000)
+    assert summary.loc["masksembles", ["complete", "failed", "median_reward"]].tolist() == [1, 1, 998.0]
+
+
 def test_reading_names_the_leader_overall_and_among_member_methods():
     # HalfCheetah as the first sweep read it: the baseline's member-free detector leads, Masksembles leads the members
     summary = pd.DataFrame({"algo": "ppo", "env": "HalfCheetah-v5",

@@ -131,6 +131,8 @@ def study_summary(df: pd.DataFrame, reward_threshold: float, auroc_threshold: fl
 
     A configuration is *performant* when its normalized reward is at least `reward_threshold` and its AUROC
     at least `auroc_threshold`. The hypervolume is measured in (normalized reward, AUROC) above (0, 0.5).
+    The median normalized reward shows how much the reward objective separates: near 1, most configurations
+    reach the env's best reward (short training that only learns to survive), and AUROC decides.
     """
     done = with_fronts(complete(df))
     finished = dict(iter(done.groupby(KEYS)))
@@ -140,7 +142,8 @@ def study_summary(df: pd.DataFrame, reward_threshold: float, auroc_threshold: fl
         performant = (ok["reward_norm"] >= reward_threshold) & (ok["auroc"] >= auroc_threshold)
         rows.append({**dict(zip(KEYS, keys)), "complete": len(ok), "failed": int((group["state"] == "FAIL").sum()),
                      "retried": int(group["retried_from"].notna().sum()),
-                     "best_reward": ok["reward"].max(), "best_auroc": ok["auroc"].max(),
+                     "best_reward": ok["reward"].max(), "median_reward": ok["reward"].median(),
+                     "median_reward_norm": ok["reward_norm"].median(), "best_auroc": ok["auroc"].max(),
                      "front_size": int(ok["is_pareto"].sum()),
                      "hypervolume": hypervolume_2d(ok[["reward_norm", "auroc"]].to_numpy(), (0.0, CHANCE_AUROC)),
                      "performant": int(performant.sum()),
