@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 from paper_lib.ensembles import ASSIGNMENTS, EnsemblesConfig, complete_combinations, complete_pairs
 from paper_lib.evaluation import summarize_rewards
 from paper_lib.methods.networks import METHODS
+from paper_lib.plots import seeded_jitter
 from paper_lib.report import reward_table
 from paper_lib.run_results import read_evaluations, read_scores
 from paper_lib.tables import PLUS_MINUS
@@ -219,7 +220,8 @@ def own_vs_shared_figure(per_seed: pd.DataFrame) -> Figure:
             ax.text(0.5, 0.5, "no complete pair yet", ha="center", va="center", transform=ax.transAxes)
         else:
             kw = dict(data=sub, x="run", y="value", hue="assignment", hue_order=list(ASSIGNMENTS), order=order, ax=ax)
-            sns.stripplot(dodge=True, alpha=0.6, size=5, legend=False, **kw)
+            with seeded_jitter():
+                sns.stripplot(dodge=True, alpha=0.6, size=5, legend=False, **kw)
             sns.pointplot(dodge=0.4, errorbar="sd", linestyle="none", markers="D", capsize=0.1, **kw)
         ax.set(title=quantity, xlabel="", ylabel=quantity.split(" ")[0])
         if ax is not axes[-1] and ax.get_legend() is not None:

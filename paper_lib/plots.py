@@ -4,15 +4,20 @@ Figures are built as ``matplotlib.figure.Figure`` objects on an Agg canvas rathe
 than through pyplot: no global backend switch (notebooks keep their inline
 backend and still display the returned figure), no GUI, and no figure registry
 that leaks memory in long pipelines. ``save_figure`` writes PNG + PDF atomically
-with the PDF creation date removed, so equal inputs give byte-identical files.
+with the PDF creation date removed, and every random draw a figure makes is seeded
+(``FIGURE_SEED``: seaborn's bootstrap intervals, ``seeded_jitter`` for strip plots),
+so equal inputs give byte-identical files.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import matplotlib.pyplot as plt  # only for plt.close; figures are built without pyplot
+import numpy as np
 import pandas as pd
 import seaborn as sns
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -22,6 +27,23 @@ from paper_lib.frames import require_columns
 from paper_lib.io import atomic_path
 
 PANEL_SIZE = (4.0, 3.2)  # inches per panel
+#: Seed of seaborn's bootstrap confidence intervals (its `seed=`) and of strip-plot jitter (`seeded_jitter`).
+FIGURE_SEED = 0
+
+
+@contextmanager
+def seeded_jitter(seed: int = FIGURE_SEED) -> Iterator[None]:
+    """Seed NumPy's global RNG for the plots drawn inside, then give the caller its state back.
+
+    seaborn's stripplot jitters its dots with `np.random.uniform` and takes no seed, so without this a
+    redrawn figure moves every dot and `make reproduce` rewrites the committed file each time.
+    """
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
 
 
 def _new_figure(n_panels: int = 1, sharey: bool = True, legend_width: float = 0.0) -> tuple[Figure, list]:
@@ -223,8 +245,9 @@ def score_aurocs(df: pd.DataFrame, max_columns: int = 4) -> Figure:
         sub = df[df["env"] == env_id]
         sns.barplot(data=sub, x="method", y="auroc", hue="score", order=order, hue_order=hue_order, errorbar=None,
                     alpha=0.5, ax=ax)
-        sns.stripplot(data=sub, x="method", y="auroc", hue="score", order=order, hue_order=hue_order, dodge=True,
-                      size=3, legend=False, ax=ax)
+        with seeded_jitter():
+            sns.stripplot(data=sub, x="method", y="auroc", hue="score", order=order, hue_order=hue_order,
+                          dodge=True, size=3, legend=False, ax=ax)
         ax.axhline(0.5, color="black", linestyle="--", linewidth=0.8)
         ax.set(title=env_id, xlabel="", ylabel="AUROC", ylim=(0, 1))
         ax.tick_params(axis="x", labelrotation=30)

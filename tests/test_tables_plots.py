@@ -220,6 +220,42 @@ def test_save_figure_writes_identical_png_and_pdf(tmp_path):
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == ["roc.pdf", "roc.png"]
 
 
+def _figures_with_random_draws() -> dict[str, Figure]:
+    """Every figure that draws at random: strip-plot jitter and seaborn's bootstrap intervals (several runs a cell)."""
+    from paper_lib.ensembles_report import own_vs_shared_figure
+    from paper_lib.guard.report import false_alarm_figure, trace_figure
+
+    seeds = range(3)
+    aurocs = pd.DataFrame([dict(env=env, method=method, score=score, auroc=0.5 + 0.1 * seed + 0.01 * len(score))
+                           for env in ("Walker2d-v5", "Swimmer-v5") for method in ("baseline", "masksembles")
+                           for score in ("value_std", "knn_obs") for seed in seeds])
+    pairs = pd.DataFrame([dict(env="Swimmer-v5", method=method, seed=seed, assignment=assignment,
+                               quantity="reward (deterministic)", value=10.0 * seed + len(assignment))
+                          for method in ("masksembles", "ensemble") for assignment in ("shared", "own") for seed in seeds])
+    alarms = pd.DataFrame([dict(env="Walker2d-v5", method=method, score="value_std", guard=guard, alpha=0.05,
+                                id_false_alarm_rate=0.01 * (seed + 1))
+                           for guard in ("state", "window", "cusum") for method in ("baseline", "masksembles")
+                           for seed in seeds])
+    traces = pd.DataFrame([dict(env="Walker2d-v5", method=method, score="value_std", step=step, statistic=step + seed,
+                                threshold=10.0, change_step=5) for method in ("baseline", "masksembles")
+                           for seed in seeds for step in range(12)])
+    return {"score_aurocs": plots.score_aurocs(aurocs), "own_vs_shared": own_vs_shared_figure(pairs),
+            "false_alarms": false_alarm_figure(alarms), "traces": trace_figure(traces)}
+
+
+def test_figures_that_draw_at_random_redraw_byte_for_byte_and_leave_the_global_rng_alone(tmp_path):
+    drawn = []
+    for global_seed in (1, 2):  # whatever state the caller left NumPy's global RNG in
+        np.random.seed(global_seed)
+        figures = _figures_with_random_draws()
+        assert np.random.randint(1 << 30) == np.random.RandomState(global_seed).randint(1 << 30), \
+            "a figure drew from the caller's global RNG stream"
+        drawn.append({name: plots.save_figure(fig, tmp_path / f"{name}_{global_seed}")["png"].read_bytes()
+                      for name, fig in figures.items()})
+    for name in drawn[0]:
+        assert drawn[0][name] == drawn[1][name], f"{name} differs between two draws of the same data"
+
+
 def test_timeline_and_image_grid():
     df = pd.DataFrame({"step": np.tile(np.arange(6), 3), "score": np.arange(18.0) / 18,
                        "measure": np.repeat(["value_std", "knn_obs", "policy_std"], 6),

@@ -10,6 +10,7 @@ from matplotlib.figure import Figure
 
 from paper_lib.frames import require_columns
 from paper_lib.guard.conformal import false_alarm_bound
+from paper_lib.plots import FIGURE_SEED
 
 KEYS = ["env", "method", "score", "guard"]
 GUARD_ORDER = ["state", "window", "cusum"]
@@ -118,7 +119,7 @@ def false_alarm_figure(table: pd.DataFrame) -> Figure:
         for j, (guard, column, scale, label) in enumerate(panels):
             ax = axes[i, j]
             sns.barplot(sub[sub.guard == guard], y="score", x=column, hue="method", hue_order=methods, order=scores,
-                        ax=ax, orient="h")
+                        ax=ax, orient="h", seed=FIGURE_SEED)
             ax.axvline(scale * alpha, color="k", ls="--", lw=1)
             ax.set(title=f"{env}: {guard} guard", ylabel="", xlabel=label)
             ax.tick_params(axis="y", labelsize="small", labelleft=j == 0)
@@ -158,7 +159,7 @@ def trace_figure(traces: pd.DataFrame) -> Figure:
             ax = axes[i, j]
             sub = data[(data.env == env) & (data.score == score)]
             if len(sub):
-                sns.lineplot(sub, x="step", y="ratio", hue="method", hue_order=methods, ax=ax, lw=1)
+                sns.lineplot(sub, x="step", y="ratio", hue="method", hue_order=methods, ax=ax, lw=1, seed=FIGURE_SEED)
                 ax.axvline(sub["change_step"].iloc[0], color="r", ls=":", lw=1)
             ax.axhline(1.0, color="k", ls="--", lw=1)
             ax.set(title=f"{env}: {score}", ylabel="window statistic / threshold")
