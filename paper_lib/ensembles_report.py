@@ -21,7 +21,7 @@ from paper_lib.evaluation import summarize_rewards
 from paper_lib.methods.networks import METHODS
 from paper_lib.plots import seeded_jitter
 from paper_lib.report import reward_table
-from paper_lib.run_results import read_evaluations, read_scores
+from paper_lib.run_results import read_evaluations, read_scores, scores_dir
 from paper_lib.tables import PLUS_MINUS
 
 #: The measures of the paper's independent-ensemble AUROC table (appendix B.2).
@@ -141,6 +141,46 @@ def independent_vs_paper(reward_summary: pd.DataFrame, auroc: pd.DataFrame, repo
         for o, env, q in zip(merged["ours"], merged["env"], merged["quantity"])]
     merged["n_combinations"] = merged["n_combinations"].astype("Int64")
     return merged[["quantity", "env", "ours", "ours_std", "n_combinations", "paper", "difference", "note"]]
+
+
+def shared_ensemble_metrics(cfg: EnsemblesConfig) -> pd.DataFrame:
+    """OOD metrics of the main matrix's scored Ensemble runs (shared buffer) in the independent ensembles' envs."""
+    runs = [r for r in cfg.run.runs() if r[1] == "ensemble" and r[0] in cfg.envs
+            and (scores_dir(cfg.run, *r) / "metrics.csv").is_file()]
+    return read_scores(cfg.run, runs, "metrics") if runs else pd.DataFrame()
+
+
+def independent_reading(vs_paper: pd.DataFrame, shared_metrics: pd.DataFrame,
+                        measures: tuple[str, ...] = ("value_std", "policy_std")) -> list[str]:
+    """Sentences made only of the numbers, one per env for each of appendix B.2's two claims: combining the
+    members costs reward against a single member, and independent members detect OOD worse than the
+    shared-buffer Ensemble (the main matrix's, perturbed states)."""
+    ours = vs_paper.dropna(subset=["ours"]).set_index(["env", "quantity"])
+    if ours.empty:
+        return ["No independent ensemble is complete yet: the members listed as missing above come first."]
+    perturbed = shared_metrics[shared_metrics["ood_set"] == "perturbed"] if not shared_metrics.empty else shared_metrics
+    lines = []
+    for env_id in dict.fromkeys(ours.index.get_level_values("env")):
+        cells = ours.loc[env_id]
+        if {"reward_combined", "reward_single"} <= set(cells.index):
+            combined, single = cells.loc["reward_combined"], cells.loc["reward_single"]
+            gap, spread = combined["ours"] - single["ours"], max(combined["ours_std"], single["ours_std"])
+            side = "larger than" if abs(gap) > spread else "within"
+            lines.append(f"{env_id}, reward (deterministic, mean over {combined['n_combinations']} combinations): "
+                         f"combined inference {combined['ours']:.1f}, a single member {single['ours']:.1f} "
+                         f"(combined - single {gap:+.1f}, {side} the larger std over combinations, {spread:.1f}); "
+                         f"the paper {combined['paper']:.1f} and {single['paper']:.1f}.")
+        parts = []
+        for measure in measures:
+            quantity = f"rocauc_{measure}"
+            shared = perturbed[(perturbed["env"] == env_id) & (perturbed["measure"] == measure)] \
+                if not perturbed.empty else perturbed
+            if quantity in cells.index and len(shared):
+                parts.append(f"{measure} {cells.loc[quantity, 'ours']:.2f} independent vs "
+                             f"{shared['auroc'].mean():.2f} shared-buffer Ensemble ({len(shared)} seed(s))")
+        if parts:
+            lines.append(f"{env_id}, AUROC on perturbed states: " + "; ".join(parts) + ".")
+    return lines
 
 
 # ------------------------------------------------------------------------------- own vs shared

@@ -154,8 +154,15 @@ def value_level_part(tables: Path) -> str:
             f"{(tables / 'value_level.md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
 
 
+def independent_part(tables: Path) -> str:
+    """Notebook 11's independent ensembles beside the paper's appendix B.2 numbers, and its generated reading."""
+    table = (tables / "ensembles" / "ensembles_independent_vs_paper.md").read_text().strip()
+    reading = (tables / "ensembles" / "ensembles_independent_reading.md").read_text().strip().split("\n\n", 1)[-1]
+    return f"### Independently trained ensembles against the paper (notebook 11, appendix B.2)\n\n{table}\n\n{reading}"
+
+
 def own_vs_shared_part(tables: Path) -> str:
-    """Notebook 11's own-vs-shared table and its generated reading (the independent ensembles stay in the notebook)."""
+    """Notebook 11's own-vs-shared table and its generated reading."""
     table = (tables / "ensembles" / "ensembles_own_vs_shared.md").read_text().strip()
     reading = (tables / "ensembles" / "ensembles_own_vs_shared_reading.md").read_text().strip().split("\n\n", 1)[-1]
     return f"### Does keeping each member on-policy help? `own` vs `shared` (notebook 11, beyond the paper)\n\n{table}\n\n{reading}"
@@ -198,6 +205,8 @@ def main(profile: str | None = None) -> None:
     value_level = tables / "value_level.md"
     if value_level.exists():
         parts.append(value_level_part(tables))
+    if (tables / "ensembles" / "ensembles_independent_reading.md").exists():
+        parts.append(independent_part(tables))
     if (tables / "ensembles" / "ensembles_own_vs_shared.md").exists():
         parts.append(own_vs_shared_part(tables))
     if (tables / "study" / "study_reading.md").exists():

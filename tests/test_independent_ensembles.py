@@ -335,10 +335,34 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
     np.testing.assert_allclose(comparison["own_minus_shared"], comparison["own"] - comparison["shared"])
     reading = (tables / "ensembles_own_vs_shared_reading.md").read_text()
     assert reading.count("Walker2d-v5, masksembles") == 4
+    independent_reading = (tables / "ensembles_independent_reading.md").read_text()
+    assert f"combined inference {per_combination.mean():.1f}" in independent_reading
+    assert "shared-buffer Ensemble" not in independent_reading  # this tiny main matrix has no Ensemble run
     for suffix in (".png", ".pdf"):
         assert (figures / f"ensembles_own_vs_shared{suffix}").stat().st_size > 0
     for stem in ("ensembles_independent_rewards", "ensembles_independent_auroc", "ensembles_own_vs_shared"):
         assert "profile 'tiny'" in (tables / f"{stem}.md").read_text().splitlines()[0]
+
+
+def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
+    from paper_lib.ensembles_report import independent_reading
+
+    vs_paper = pd.DataFrame([
+        dict(quantity="reward_combined", env="Swimmer-v5", ours=0.5, ours_std=23.6, n_combinations=5, paper=0.38),
+        dict(quantity="reward_single", env="Swimmer-v5", ours=73.2, ours_std=9.2, n_combinations=5, paper=170.64),
+        dict(quantity="rocauc_value_std", env="Swimmer-v5", ours=0.49, ours_std=0.1, n_combinations=5, paper=0.26),
+        dict(quantity="rocauc_policy_std", env="Swimmer-v5", ours=0.42, ours_std=0.1, n_combinations=5, paper=0.39),
+        dict(quantity="reward_combined", env="MsPacmanNoFrameskip-v4", ours=np.nan, ours_std=np.nan,
+             n_combinations=pd.NA, paper=1089.2)])  # not trained: no line
+    shared = pd.DataFrame([dict(env="Swimmer-v5", ood_set=ood_set, measure="value_std", auroc=auroc, seed=seed)
+                           for seed, auroc in enumerate((0.8, 1.0)) for ood_set in ("perturbed", "noise")])
+    reward, auroc = independent_reading(vs_paper, shared)
+    assert reward.startswith("Swimmer-v5, reward (deterministic, mean over 5 combinations): combined inference 0.5, "
+                             "a single member 73.2 (combined - single -72.7, larger than the larger std over "
+                             "combinations, 23.6); the paper 0.4 and 170.6")
+    assert auroc == ("Swimmer-v5, AUROC on perturbed states: value_std 0.49 independent vs 0.90 shared-buffer "
+                     "Ensemble (2 seed(s)).")  # policy_std: no shared-buffer score to put it beside
+    assert independent_reading(vs_paper.iloc[4:], shared)[0].startswith("No independent ensemble is complete yet")
 
 
 def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
