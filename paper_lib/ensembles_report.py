@@ -81,11 +81,13 @@ def independent_reward_summary(rewards: pd.DataFrame) -> pd.DataFrame:
     return out.assign(std_over=out["std_over"].replace({"seeds": "combinations"}))[columns]
 
 
-def independent_reward_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """The appendix's reward table: rows inference x actions, columns env, cells 'mean ± std over combinations'."""
+def independent_reward_table(summary: pd.DataFrame, envs: list[str]) -> pd.DataFrame:
+    """The appendix's reward table: rows inference x actions, columns env in `envs` order (the AUROC table's),
+    cells 'mean ± std over combinations'."""
     if summary.empty:
         return pd.DataFrame(columns=["method", "inference", "actions"])
-    return reward_table(summary, [METHOD])
+    wide = reward_table(summary, [METHOD])
+    return wide[["method", "inference", "actions", *[e for e in envs if e in wide.columns]]]
 
 
 def auroc_summary(metrics: pd.DataFrame, keys: list[str], over: str) -> pd.DataFrame:

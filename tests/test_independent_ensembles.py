@@ -344,6 +344,15 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
         assert "profile 'tiny'" in (tables / f"{stem}.md").read_text().splitlines()[0]
 
 
+def test_independent_reward_table_keeps_the_envs_in_the_appendix_order():
+    from paper_lib.ensembles_report import independent_reward_table
+
+    summary = pd.DataFrame([dict(env=env, method="independent_ensemble", inference="combined", deterministic=True,
+                                 mean=1.0, std=0.5, n_combinations=5) for env in ("Swimmer-v5", "Walker2d-v5")])
+    table = independent_reward_table(summary, ["Walker2d-v5", "Swimmer-v5", "MsPacmanNoFrameskip-v4"])
+    assert list(table.columns) == ["method", "inference", "actions", "Walker2d-v5", "Swimmer-v5"]
+
+
 def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
     from paper_lib.ensembles_report import independent_reading
 
