@@ -112,8 +112,9 @@ def scaling_final(final: pd.DataFrame) -> Figure:
     fig, axes = _figure(1, len(envs))
     for ax, env in zip(axes, envs):
         sub = final[final["env"] == env]
-        sns.pointplot(data=sub, x="width", y="reward", hue="method", palette=PALETTE, hue_order=_methods(sub),
-                      errorbar="sd", dodge=0.3, ax=ax)
+        methods = _methods(sub)  # seaborn divides the dodge among the methods: one method is not dodged
+        sns.pointplot(data=sub, x="width", y="reward", hue="method", palette=PALETTE, hue_order=methods,
+                      errorbar="sd", dodge=0.3 if len(methods) > 1 else False, ax=ax)
         ax.set(title=str(env), xlabel="hidden units per layer", ylabel="final evaluation reward")
     _legend_outside(fig, axes, "method")
     return fig

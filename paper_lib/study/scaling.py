@@ -122,29 +122,65 @@ def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]
     return done
 
 
-def training_curves(cfg: ScalingConfig) -> pd.DataFrame:
-    """Every run's training curve, tagged with env, method, width and seed."""
+#: `progress` status of a run with a finished checkpoint, and of one without.
+TRAINED, NOT_TRAINED = "trained", "not trained"
+
+
+def progress(cfg: ScalingConfig) -> pd.DataFrame:
+    """Every run with its status: the notebook draws the trained ones while the others still train (hours)."""
+    rows = [{"env": r.env_id, "method": r.method, "width": r.width, "seed": r.seed,
+             "status": TRAINED if is_done(cfg, r) else NOT_TRAINED, "folder": str(cfg.run_dir(r))} for r in cfg.runs]
+    return pd.DataFrame(rows, columns=["env", "method", "width", "seed", "status", "folder"])
+
+
+def progress_caption(status: pd.DataFrame) -> str:
+    """'7 of 20 scaling runs trained', for captions and titles."""
+    return f"{int((status['status'] == TRAINED).sum())} of {len(status)} scaling runs trained"
+
+
+def trained_runs(cfg: ScalingConfig) -> list[ScalingRun]:
+    return [run for run in cfg.runs if is_done(cfg, run)]
+
+
+def training_curves(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) -> pd.DataFrame:
+    """The training curves of `runs` (default: every run, all of which must be trained), tagged with env,
+    method, width and seed."""
     frames = []
-    for run in cfg.runs:
+    for run in cfg.runs if runs is None else runs:
         path = cfg.run_dir(run) / "training_curve.csv"
         if not path.is_file():
             raise FileNotFoundError(f"{path} is missing; train it with `python -m paper_lib.study.scaling`")
         frames.append(pd.read_csv(path).assign(env=run.env_id, method=run.method, width=run.width, seed=run.seed))
-    return pd.concat(frames, ignore_index=True)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
+        columns=["timesteps", "reward", "env", "method", "width", "seed"])
 
 
-def final_rewards(cfg: ScalingConfig) -> pd.DataFrame:
-    """Deterministic evaluation reward of every run, one row per episode."""
+def final_rewards(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) -> pd.DataFrame:
+    """Deterministic evaluation reward of `runs` (default: every run), one row per episode."""
     from paper_lib.checkpoints import load_checkpoint
     from paper_lib.study.objective import evaluation_episodes
 
     rows = []
-    for run in cfg.runs:
+    for run in cfg.runs if runs is None else runs:
         checkpoint = load_checkpoint(cfg.run_dir(run), run.env_id, run.method, run.seed)
         rewards = evaluation_episodes(checkpoint, cfg.eval_episodes, 10_000 + run.seed, deterministic=True)
         rows += [{"env": run.env_id, "method": run.method, "width": run.width, "seed": run.seed, "episode": i,
                   "reward": float(r)} for i, r in enumerate(rewards)]
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=["env", "method", "width", "seed", "episode", "reward"])
+
+
+def width_reading(table: pd.DataFrame, status: pd.DataFrame) -> pd.DataFrame:
+    """Per env and method: the change of the mean final reward from the narrowest to the widest layers, read
+    only once all its runs are trained (a missing width would make the change meaningless)."""
+    rows = []
+    for (env, method), runs in status.groupby(["env", "method"], sort=False):
+        row = {"env": env, "method": method, "narrowest": int(runs["width"].min()),
+               "widest": int(runs["width"].max()), "change": np.nan, "read": False}
+        if (runs["status"] == TRAINED).all():
+            group = table[(table["env"] == env) & (table["method"] == method)].sort_values("width")
+            row.update(change=float(group["mean"].iloc[-1] - group["mean"].iloc[0]), read=True)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=["env", "method", "narrowest", "widest", "change", "read"])
 
 
 def final_table(final: pd.DataFrame) -> pd.DataFrame:
