@@ -231,6 +231,23 @@ def test_a_worker_stopped_by_sigterm_queues_its_trial_again_at_once(root):
     assert [(t.state, t.params, t.system_attrs.get("failed_trial")) for t in rest] == [(TrialState.WAITING, cut.params, 0)]
 
 
+def test_sigterm_during_a_string_exec_still_exits_with_130(tmp_path):
+    """CPython kills a `python -m` process by SIGINT at exit if a bare KeyboardInterrupt left a string exec,
+    caught or not; the worker's SIGTERM exception must not do that (a CI run caught it there once)."""
+    (tmp_path / "stop_in_exec.py").write_text(
+        "import os, signal, sys\n"
+        "from paper_lib.study.worker import _interrupt\n"
+        "signal.signal(signal.SIGTERM, _interrupt)\n"
+        "try:\n"
+        "    exec('import os, signal, time\\nos.kill(os.getpid(), signal.SIGTERM)\\ntime.sleep(5)')\n"
+        "except KeyboardInterrupt:\n"
+        "    sys.exit(130)\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-m", "stop_in_exec"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 130, done.stderr
+
+
 def test_a_worker_killed_mid_trial_leaves_a_failed_trial_that_is_retried(root):
     url = f"sqlite:///{root / 'kill.db'}"
     first = _worker(root, root / "kill-0.log", "--study", STUDY, "--storage", url, "--trials", "2")

@@ -161,8 +161,18 @@ def _trial(study: optuna.Study, number: int | None) -> FrozenTrial | None:
     return next((t for t in study.get_trials(deepcopy=False) if t.number == number), None)
 
 
+class WorkerStopped(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C (the running trial is queued again), under a type of its own.
+
+    A plain KeyboardInterrupt that arrives while CPython runs a string `exec` (dataclasses, namedtuple and
+    others build code that way) sets a flag that makes a `python -m` process die by SIGINT at exit, even
+    after the worker caught it and chose exit status 130; CPython checks the exact type, so a subclass keeps
+    the status (a CI run lost that race once).
+    """
+
+
 def _interrupt(*_: Any) -> None:
-    raise KeyboardInterrupt
+    raise WorkerStopped
 
 
 def _describe(name: str, trial: FrozenTrial) -> str:
