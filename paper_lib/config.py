@@ -63,6 +63,7 @@ class RunConfig:
     n_scoring_seeds: int  # torch seeds each MC Dropout / DropConnect run is scored under
     hyperparameters: dict[str, dict[str, Any]] = field(repr=False)
     root: Path = Path(".")
+    atari_head_root: Path | None = None  # a local Atari-HEAD copy: its frames become the Atari OOD states
 
     @property
     def results(self) -> Path:
@@ -124,7 +125,7 @@ OPTIONAL: tuple[str, ...] = ()
 
 SECTIONS = ("run", "profiles", "hyperparameters")
 #: Sections other parts read with their own loaders (`study`: paper_lib.study.config); kept as they are.
-OPTIONAL_SECTIONS = ("study", "guard", "ensembles")
+OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head")
 POSITIVE = ("n_id_states", "n_ood_states", "eval_episodes", "max_episode_steps", "n_bootstrap", "ood_configs",
             "id_episodes", "steps_per_config", "n_scoring_seeds")
 
@@ -244,7 +245,27 @@ def validate_params(params: dict[str, Any], path: str | Path = PARAMS_FILE) -> R
             except ValueError as err:
                 raise ValueError(f"{path}: run with {env_id}: {err}; change `overrides` or the env's hyperparameters") \
                     from None
-    return RunConfig(profile=profile, **{k: run[k] for k in REQUIRED}, hyperparameters=hps, root=path.parent)
+    return RunConfig(profile=profile, **{k: run[k] for k in REQUIRED}, hyperparameters=hps, root=path.parent,
+                     atari_head_root=atari_head_root(params.get("atari_head"), path))
+
+
+def atari_head_root(section: Any, path: str | Path = PARAMS_FILE) -> Path | None:
+    """The `atari_head.root` of params.yaml: None (the default: game-state OOD sources), else the folder of a
+    local Atari-HEAD copy, relative to params.yaml's folder unless absolute. Whether it holds the games is
+    checked where its frames are read (`paper_lib.ood.atari_head`), so a wrong path stops only Atari collection."""
+    path = Path(path)
+    if section is None:
+        return None
+    if not isinstance(section, dict) or set(section) != {"root"}:
+        raise ValueError(f"{path}: `atari_head` must be a mapping with the one key `root` (null, or the folder of a "
+                         f"local Atari-HEAD copy), got {section!r}")
+    root = section["root"]
+    if root is None:
+        return None
+    if not isinstance(root, str) or not root.strip():
+        raise ValueError(f"{path}: atari_head.root must be null or a folder path as a string, got {root!r}")
+    root = Path(root).expanduser()
+    return root if root.is_absolute() else path.parent / root
 
 
 def load_run_config(path: str | Path = PARAMS_FILE) -> RunConfig:

@@ -55,7 +55,6 @@ import numpy as np
 import pandas as pd
 import torch as th
 import yaml
-from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.agents import config_value
@@ -65,8 +64,8 @@ from paper_lib.envs import is_atari
 from paper_lib.io import write_text_atomic
 from paper_lib.methods.independent import assemble_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS
-from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
-from paper_lib.ood.datasets import StateDataset, concat
+from paper_lib.pipeline import collect_run, collect_states
+from paper_lib.ood.datasets import StateDataset
 from paper_lib.train import hp_flags, train_command
 
 SECTION = "ensembles"
@@ -485,30 +484,6 @@ def _read_normalizer(path: Path) -> VecNormalize:
 # ---------------------------------------------------------------------- states, episodes, scores
 
 
-def collect_agent(run: RunConfig, model: BaseAlgorithm, env_id: str, seed: int,
-                  vecnormalize: VecNormalize | None = None) -> StateDataset:
-    """ID and OOD states of one agent with the profile's action mode and protocol.
-
-    The same calls and seeds as the main pipeline's `collect_run`, for an agent that is not a
-    checkpoint folder (an assembled ensemble).
-    """
-    th.set_num_threads(1)
-    common = dict(action_mode=ActionMode(deterministic=run.deterministic, inference=run.inference),
-                  max_episode_steps=run.max_episode_steps, skip_first=run.skip_first)
-    if run.protocol == "main":
-        id_size = dict(episodes=run.id_episodes, steps_per_episode=run.steps_per_config)
-        ood_size = dict(configs=run.ood_configs, steps_per_config=run.steps_per_config)
-    else:
-        id_size, ood_size = dict(n_states=run.n_id_states), dict(n_states=run.n_ood_states)
-    id_states = collect_id_states(model, env_id, seed=1000 * seed + 1, vecnormalize=vecnormalize, **id_size, **common)
-    if is_atari(env_id):
-        ood = collect_atari_ood_states(model, env_id, seed=1000 * seed + 2, **ood_size, **common)
-    else:
-        ood = collect_mujoco_ood_states(model, env_id, seed=1000 * seed + 2, vecnormalize=vecnormalize, **ood_size,
-                                        **common)
-    return concat(id_states, ood)
-
-
 def evaluate_agent(run: RunConfig, checkpoint: Checkpoint, seed: int) -> pd.DataFrame:
     """Evaluation episodes (combined and single inference, both action modes), seeded as `run_results.evaluate_run`."""
     from paper_lib.evaluation import evaluate_rewards
@@ -534,10 +509,9 @@ def _csv(df: pd.DataFrame) -> str:
 def collect_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
     """States of every trained combination and own run without them (and of shared twins outside the main matrix).
 
-    Combination c (in `cfg.combinations()` order) collects with seed c; a run with its own seed.
+    Combination c (in `cfg.combinations()` order) collects with seed c, through the main pipeline's
+    `collect_states` (the same calls and OOD source as every run of the tables); a run with its own seed.
     """
-    from paper_lib.pipeline import collect_run
-
     _make_dirs(cfg, "datasets")
     written = []
     for env_id in cfg.envs:
@@ -545,7 +519,7 @@ def collect_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
             path = cfg.combination_dataset(env_id, members)
             if combination_has(cfg, env_id, members, "checkpoint") and not path.is_file():
                 ensemble = assemble_members(cfg, env_id, members)
-                written.append(collect_agent(cfg.run, ensemble.model, env_id, c).save(path))
+                written.append(collect_states(cfg.run, ensemble.model, env_id, c).save(path))
                 log(f"collected {path}")
     for tree, run in _runs_to_do(cfg, "dataset"):
         written.append(collect_run(tree, *run))

@@ -10,12 +10,15 @@ import argparse
 from pathlib import Path
 
 import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.checkpoints import load_checkpoint
 from paper_lib.config import RunConfig, load_run_config
 from paper_lib.envs import is_atari
+from paper_lib.ood.atari_head import atari_head_ood_dataset
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
-from paper_lib.ood.datasets import concat
+from paper_lib.ood.datasets import StateDataset, concat
 
 
 def train_stage(cfg: RunConfig, env_id: str, method: str, seed: int, **train_kwargs) -> Path:
@@ -34,30 +37,41 @@ def train_stage(cfg: RunConfig, env_id: str, method: str, seed: int, **train_kwa
                      agent_kwargs=agent_kwargs, **train_kwargs)
 
 
-def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
-    """ID and OOD states of one trained run, with the profile's action mode and protocol, saved as one dataset.
+def collect_states(cfg: RunConfig, model: BaseAlgorithm, env_id: str, seed: int,
+                   vecnormalize: VecNormalize | None = None) -> StateDataset:
+    """ID and OOD states of one agent with the profile's action mode and protocol (ID first).
 
     protocol "main" (section 5): id_episodes and ood_configs clusters of steps_per_config states
     each; "appendix" (appendix G): n_id_states and n_ood_states, a new configuration per episode.
+    Atari OOD states are edited game states, or, where params.yaml gives `atari_head.root`, as
+    many frames of human play from that Atari-HEAD copy.
     """
     th.set_num_threads(1)
-    ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
-    vecnormalize = ckpt.env(1, seed) if ckpt.vecnormalize_path is not None else None
     mode = ActionMode(deterministic=cfg.deterministic, inference=cfg.inference)
-    common = dict(action_mode=mode, max_episode_steps=cfg.max_episode_steps, skip_first=cfg.skip_first,
-                  vecnormalize=vecnormalize)
+    common = dict(action_mode=mode, max_episode_steps=cfg.max_episode_steps, skip_first=cfg.skip_first)
     if cfg.protocol == "main":
         id_size = dict(episodes=cfg.id_episodes, steps_per_episode=cfg.steps_per_config)
         ood_size = dict(configs=cfg.ood_configs, steps_per_config=cfg.steps_per_config)
+        n_ood = cfg.ood_configs * cfg.steps_per_config
     else:
         id_size, ood_size = dict(n_states=cfg.n_id_states), dict(n_states=cfg.n_ood_states)
-    id_states = collect_id_states(ckpt.model, env_id, seed=1000 * seed + 1, **id_size, **common)
-    if is_atari(env_id):
-        common.pop("vecnormalize")
-        ood_states = collect_atari_ood_states(ckpt.model, env_id, seed=1000 * seed + 2, **ood_size, **common)
+        n_ood = cfg.n_ood_states
+    id_states = collect_id_states(model, env_id, seed=1000 * seed + 1, vecnormalize=vecnormalize, **id_size, **common)
+    if is_atari(env_id) and cfg.atari_head_root is not None:
+        ood_states = atari_head_ood_dataset(cfg.atari_head_root, env_id, n_ood, seed=1000 * seed + 2)
+    elif is_atari(env_id):
+        ood_states = collect_atari_ood_states(model, env_id, seed=1000 * seed + 2, **ood_size, **common)
     else:
-        ood_states = collect_mujoco_ood_states(ckpt.model, env_id, seed=1000 * seed + 2, **ood_size, **common)
-    return concat(id_states, ood_states).save(cfg.dataset_path(env_id, method, seed))
+        ood_states = collect_mujoco_ood_states(model, env_id, seed=1000 * seed + 2, vecnormalize=vecnormalize,
+                                               **ood_size, **common)
+    return concat(id_states, ood_states)
+
+
+def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
+    """`collect_states` of one trained run of the active profile, saved as its dataset."""
+    ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
+    vecnormalize = ckpt.env(1, seed) if ckpt.vecnormalize_path is not None else None
+    return collect_states(cfg, ckpt.model, env_id, seed, vecnormalize).save(cfg.dataset_path(env_id, method, seed))
 
 
 def main() -> None:

@@ -111,7 +111,8 @@ def _span(values: pd.Series) -> str:
 
 
 #: How `protocol_note` names the collection protocols recorded in the datasets.
-PROTOCOL_NAMES = {"main": "main-text protocol (section 5)", "appendix": "appendix G protocol"}
+PROTOCOL_NAMES = {"main": "main-text protocol (section 5)", "appendix": "appendix G protocol",
+                  "atari_head": "Atari-HEAD human play as OOD (a trial per configuration)"}
 
 
 def protocol_note(metrics: pd.DataFrame) -> str:

@@ -123,7 +123,8 @@ def collection_protocol(dataset) -> str:
 
 def collection_actions(dataset) -> str:
     """'sampled actions, vote inference' and the like: how the agent acted while its states were collected."""
-    mode = dataset.metadata.get("action_mode") or {}
+    parts = dataset.metadata.get("parts") or [dataset.metadata]  # Atari-HEAD OOD states record no action mode
+    mode = dataset.metadata.get("action_mode") or next((p["action_mode"] for p in parts if p.get("action_mode")), {})
     if not mode:
         return "unknown"
     actions = "deterministic" if mode.get("deterministic") else "sampled"

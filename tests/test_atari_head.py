@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import tarfile
 from pathlib import Path
 
@@ -12,7 +14,22 @@ import pytest
 from stable_baselines3.common.atari_wrappers import MaxAndSkipEnv, WarpFrame
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
-from paper_lib.ood.atari_head import LABEL_HEADER, list_trials, load_atari_head_states, read_labels, warp_frame
+from conftest import TINY
+from paper_lib import make_agent
+from paper_lib.config import load_run_config
+from paper_lib.ood.atari_head import (
+    HEAD_SOURCE,
+    LABEL_HEADER,
+    atari_head_ood_dataset,
+    list_trials,
+    load_atari_head_states,
+    read_labels,
+    warp_frame,
+)
+from paper_lib.ood.coverage import HUMAN_PLAY, source_coverage
+from paper_lib.ood.datasets import StateDataset
+from paper_lib.pipeline import collect_states
+from paper_lib.run_results import collection_actions, collection_protocol
 
 # trial name -> episode id of each frame (Atari-HEAD writes "null" outside episodes)
 TRIALS = {
@@ -196,3 +213,43 @@ def test_corrupt_archive_is_named(head_root, damage):
     with pytest.raises(ValueError, match=f"Atari-HEAD archive {archive} is corrupt or not a .tar.bz2") as err:
         load_atari_head_states(root, "Seaquest", 17, np.random.default_rng(0))  # every state: both trials are read
     assert "\n" not in str(err.value)
+
+
+SEAQUEST = "SeaquestNoFrameskip-v4"
+
+
+def test_head_dataset_holds_the_loaders_states_with_their_provenance(head_root, tmp_path):
+    root, _ = head_root
+    data = atari_head_ood_dataset(root, SEAQUEST, 10, seed=3)
+    states, infos = load_atari_head_states(root, "Seaquest", 10, np.random.default_rng(3))
+    order = sorted(range(10), key=lambda i: (infos[i].trial, str(infos[i].episode_id), infos[i].step))
+    assert order != list(range(10))  # drawn at random, kept in play order
+    states, infos = states[order], [infos[i] for i in order]
+    np.testing.assert_array_equal(data.states, states)
+    assert (data.labels == 1).all() and set(data.source) == {HEAD_SOURCE}
+    assert [json.loads(data.config_json(i))["trial"] for i in range(10)] == [info.trial for info in infos]
+    assert data.step.tolist() == [info.step for info in infos]
+    assert len(set(data.episode.tolist())) == len({(info.trial, info.episode_id) for info in infos}) > 1
+    assert str(root) not in json.dumps(data.metadata)  # the same copy gives the same dataset on any machine
+    assert StateDataset.load(data.save(tmp_path / "head.npz")).equals(data)
+
+
+def test_a_params_root_makes_head_frames_the_atari_ood_states(head_root):
+    """The pipeline's collection (the main runs and the independent ensembles): OOD from the copy when given."""
+    root, _ = head_root
+    model = make_agent("ppo", "baseline", SEAQUEST, seed=0, n_envs=2, overrides=dict(TINY))
+    cfg = dataclasses.replace(load_run_config(), protocol="appendix", n_id_states=8, n_ood_states=6,
+                              max_episode_steps=20, skip_first=2, atari_head_root=root)
+    data = collect_states(cfg, model, SEAQUEST, seed=0)
+    ood, head = data.subset(data.labels == 1), atari_head_ood_dataset(root, SEAQUEST, 6, seed=2)
+    assert (data.labels == 0).sum() == 8 and set(ood.source) == {HEAD_SOURCE}
+    np.testing.assert_array_equal(ood.states, head.states)
+    assert [ood.config_json(i) for i in range(6)] == [head.config_json(i) for i in range(6)]
+    assert collection_protocol(data) == HEAD_SOURCE and collection_actions(data) == "sampled actions, vote inference"
+    coverage = source_coverage(data)
+    assert coverage.loc[0, "ood_source"] == HEAD_SOURCE and coverage.loc[0, "check"] == HUMAN_PLAY
+    edited = collect_states(dataclasses.replace(cfg, atari_head_root=None), model, SEAQUEST, seed=0)
+    assert set(edited.source[edited.labels == 1]) == {"level"}  # the default: edited game states
+    np.testing.assert_array_equal(edited.states[:8], data.states[:8])  # the same ID states either way
+    with pytest.raises(FileNotFoundError, match="Atari-HEAD root"):
+        collect_states(dataclasses.replace(cfg, atari_head_root=root / "missing"), model, SEAQUEST, seed=0)

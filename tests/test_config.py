@@ -65,6 +65,8 @@ def test_params_hyperparameters_match_the_packaged_paper_table():
     (lambda p: p["run"].pop("eval_episodes"), "lacks"),
     (lambda p: p["run"].update(total_timesteps={"Hopper-v5": 1000}), "total_timesteps names unknown env 'Hopper-v5'"),
     (lambda p: p["run"].update(total_timesteps={"Ant-v5": 0}), "total_timesteps.Ant-v5"),
+    (lambda p: p.update(atari_head={"root": 3}), "atari_head.root must be null or a folder"),
+    (lambda p: p.update(atari_head={"path": "head"}), "`atari_head` must be a mapping with the one key `root`"),
 ])
 def test_bad_params_name_the_file_and_the_fix(params, edit, match):
     data = yaml.safe_load(params.read_text())
@@ -73,6 +75,14 @@ def test_bad_params_name_the_file_and_the_fix(params, edit, match):
     with pytest.raises(ValueError, match=match) as err:
         load_run_config(params)
     assert str(params) in str(err.value)
+
+
+def test_an_atari_head_root_is_read_relative_to_params_yaml(params):
+    assert load_run_config(params).atari_head_root is None  # the committed default: game-state OOD sources
+    data = yaml.safe_load(params.read_text())
+    data["atari_head"] = {"root": "data/atari_head"}
+    params.write_text(yaml.safe_dump(data))
+    assert load_run_config(params).atari_head_root == params.parent / "data" / "atari_head"
 
 
 def test_unknown_profile_switch_fails_and_keeps_the_file(params):

@@ -11,16 +11,23 @@ The frames are raw emulator frames. The agent saw them through SB3's AtariWrappe
 VecFrameStack, so the loader redoes that: one state per ``frame_skip`` frames, the
 pixel-wise max of the last two frames of each skip (MaxAndSkipEnv), grey and 84x84
 INTER_AREA (WarpFrame), 4 of them stacked oldest first (VecFrameStack).
+
+``atari_head_ood_dataset`` makes them a run's OOD set; the pipeline uses it in place of the
+edited game states when params.yaml sets ``atari_head.root`` (``paper_lib.pipeline.collect_states``).
 """
 
 from __future__ import annotations
 
+import json
 import tarfile
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 import cv2
 import numpy as np
+
+from paper_lib.ood.atari import game_of
+from paper_lib.ood.datasets import OOD_LABEL, StateDataset
 
 LABEL_HEADER: tuple[str, ...] = (
     "frame_id", "episode_id", "score", "duration(ms)", "unclipped_reward", "action", "gaze_positions",
@@ -52,6 +59,7 @@ class StateInfo:
     episode_id: str | None
     frame_ids: tuple[str, ...]
     score: int | None  # score at the newest frame
+    step: int  # the agent step within its episode (0 = the episode's first frame_skip frames)
 
 
 def _null(text: str) -> str | None:
@@ -178,7 +186,7 @@ def load_atari_head_states(root: str | Path, game: str, n_states: int, rng: np.r
 
     States are drawn uniformly without replacement over all trials and all agent steps
     that have 4 full stacked images inside one episode (rows with the same episode id).
-    Returns the states, in the drawn order, and per state its trial and raw frame ids.
+    Returns the states, in the drawn order, and per state its trial, raw frame ids and step.
     ``frame_skip=1`` takes every row as one agent step, without max-pooling.
     """
     if not isinstance(rng, np.random.Generator):
@@ -215,5 +223,35 @@ def load_atari_head_states(root: str | Path, game: str, n_states: int, rng: np.r
                 states[i, :, :, c] = warp_frame(np.max([frames[ids[r].frame_id] for r in pair], axis=0))
             newest = ids[stack[-1][-1]]
             infos[i] = StateInfo(trial, newest.episode_id,
-                                 tuple(ids[r].frame_id for pair in stack for r in pair), newest.score)
+                                 tuple(ids[r].frame_id for pair in stack for r in pair), newest.score, pick[2])
     return states, [info for info in infos if info is not None]
+
+
+#: The ``source`` of Atari-HEAD states in a StateDataset, and the ``kind`` and protocol name in its metadata.
+HEAD_SOURCE = "atari_head"
+HEAD_KIND = "atari_head_ood"
+
+
+def atari_head_ood_dataset(root: str | Path, env_id: str, n_states: int, seed: int,
+                           frame_skip: int = 4) -> StateDataset:
+    """The OOD set of an ``env_id`` agent from human play (the paper's source), as a StateDataset.
+
+    ``n_states`` states drawn with ``np.random.default_rng(seed)``, kept in play order (trial,
+    episode, step: the over-time plots then show human play as it went); each human trial is one
+    configuration (so the cluster bootstrap resamples whole trials), each (trial, episode) one
+    episode. The metadata names the game and trials, not ``root``: the same copy gives the same
+    dataset on any machine.
+    """
+    game = game_of(env_id)
+    states, infos = load_atari_head_states(root, game, n_states, np.random.default_rng(seed), frame_skip)
+    order = sorted(range(len(infos)), key=lambda i: (infos[i].trial, str(infos[i].episode_id), infos[i].step))
+    states, infos = states[order], [infos[i] for i in order]  # play order, as the agent's own collections
+    trials = sorted({info.trial for info in infos})
+    configs = [json.dumps({"source": HEAD_SOURCE, "game": game, "trial": t}, sort_keys=True) for t in trials]
+    episodes = {key: i for i, key in enumerate(sorted({(info.trial, str(info.episode_id)) for info in infos}))}
+    metadata = {"kind": HEAD_KIND, "env_id": env_id, "game": game, "seed": int(seed), "frame_skip": int(frame_skip),
+                "protocol": {"name": HEAD_SOURCE, "n_states": int(n_states)}, "trials": trials}
+    return StateDataset(states=states, labels=np.full(len(states), OOD_LABEL), source=[HEAD_SOURCE] * len(states),
+                        config_index=[trials.index(info.trial) for info in infos],
+                        episode=[episodes[(info.trial, str(info.episode_id))] for info in infos],
+                        step=[info.step for info in infos], configs=configs, metadata=metadata)

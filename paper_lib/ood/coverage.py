@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from paper_lib.ood.atari import ATARI_GAMES, DEFAULT_SOURCE, indicator_name, source_values
+from paper_lib.ood.atari_head import HEAD_KIND, HEAD_SOURCE
 from paper_lib.ood.datasets import ID_LABEL, NOT_RECORDED, OOD_LABEL, StateDataset
 
 #: The columns of ``source_coverage``'s row, in order.
@@ -25,6 +26,7 @@ COVERAGE_COLUMNS = ("game", "ood_source", "indicator", "ood_values", "n_id_state
                     "ood_share_at_ood_values", "check")
 PASSED, FAILED, NOT_CHECKED = "passed", "failed: ID play reached OOD values", "not recorded: recollect the dataset"
 STALE = "stale: the ID states recorded another indicator than the source's today; recollect the dataset"
+HUMAN_PLAY = "not applicable: Atari-HEAD human play has no game-state indicator to compare"
 
 
 def _values_text(values: Any) -> str:
@@ -91,6 +93,8 @@ def source_coverage(dataset: StateDataset, game: str | None = None) -> pd.DataFr
     if not isinstance(dataset, StateDataset):
         raise TypeError(f"expected a StateDataset, got {type(dataset).__name__}.")
     game = _game_of(dataset, game)
+    if any(p.get("kind") == HEAD_KIND for p in _parts(dataset)):
+        return _human_play_row(dataset, game)
     ood_source, recorded_source = _sources(dataset, game)
     ood_values = np.array(source_values(game, ood_source))
     is_id = dataset.labels == ID_LABEL
@@ -114,5 +118,19 @@ def source_coverage(dataset: StateDataset, game: str | None = None) -> pd.DataFr
                                     else np.nan),
         "check": check,
     }
+    return _frame(row)
+
+
+def _human_play_row(dataset: StateDataset, game: str) -> pd.DataFrame:
+    """Atari-HEAD OOD states (human play at advanced levels) carry no indicator: nothing to check here."""
+    is_id = dataset.labels == ID_LABEL
+    row = {"game": game, "ood_source": HEAD_SOURCE, "indicator": None, "ood_values": "",
+           "n_id_states": int(is_id.sum()), "n_id_recorded": 0, "id_min": None, "id_max": None, "id_values": "",
+           "id_states_at_ood_values": 0, "id_share_at_ood_values": np.nan, "ood_share_at_ood_values": np.nan,
+           "check": HUMAN_PLAY}
+    return _frame(row)
+
+
+def _frame(row: dict[str, Any]) -> pd.DataFrame:
     frame = pd.DataFrame([row], columns=list(COVERAGE_COLUMNS))
     return frame.astype({"id_min": "Int64", "id_max": "Int64"})
