@@ -177,6 +177,13 @@ def study_part(tables: Path) -> str:
             f"`{tables / 'study' / 'study_summary.md'}`.")
 
 
+def scaling_part(tables: Path) -> str:
+    """Notebook 10's comparison with appendix E, once scaling runs are read."""
+    return (f"### Scaling the hidden layers against the paper (notebook 10, appendix E)\n\n"
+            f"{(tables / 'scaling' / 'scaling_vs_paper.md').read_text().strip()}\n\n"
+            f"Final rewards per width: `{tables / 'scaling' / 'scaling_final_reward.md'}`.")
+
+
 def paste(readme: str, start: str, end: str, body: str) -> str:
     """`readme` with the text between the `start` and `end` markers replaced by `body`."""
     head, _, rest = readme.partition(start)
@@ -211,6 +218,9 @@ def main(profile: str | None = None) -> None:
         parts.append(own_vs_shared_part(tables))
     if (tables / "study" / "study_reading.md").exists():
         parts.append(study_part(tables))
+    versus = tables / "scaling" / "scaling_vs_paper.csv"
+    if versus.exists() and len(pd.read_csv(versus)):
+        parts.append(scaling_part(tables))
     readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
     bench = Path("results/bench/bench.csv")
     if bench.exists():

@@ -174,6 +174,22 @@ def test_reading_names_the_leader_overall_and_among_member_methods():
 # ------------------------------------------------------------------------------------------ trials and workers
 
 
+def test_scaling_is_read_against_appendix_e():
+    runs = [("Walker2d-v5", "masksembles", 64, 300.0), ("Walker2d-v5", "masksembles", 128, 330.0),  # +10%: up
+            ("Walker2d-v5", "baseline", 64, 350.0), ("Walker2d-v5", "baseline", 128, 360.0),  # +2.9%: flat
+            ("Walker2d-v5", "mc_dropout", 64, 400.0), ("Walker2d-v5", "mc_dropout", 128, 360.0),  # -10%: down
+            ("HalfCheetah-v5", "baseline", 64, 1000.0), ("HalfCheetah-v5", "baseline", 128, 2000.0),  # not in appendix E
+            ("Ant-v5", "masksembles", 64, 900.0)]  # its 128 run not trained: not read
+    table = pd.DataFrame(runs, columns=["env", "method", "width", "mean"])
+    status = table[["env", "method", "width"]].assign(status=scaling.TRAINED)
+    status = pd.concat([status, pd.DataFrame([{"env": "Ant-v5", "method": "masksembles", "width": 128,
+                                               "status": scaling.NOT_TRAINED}])], ignore_index=True)
+    versus = scaling.paper_comparison(scaling.width_reading(table, status), table)
+    assert versus[["method", "ours", "agrees"]].values.tolist() == [
+        ["masksembles", "up", True], ["baseline", "flat", True], ["mc_dropout", "down", False]]
+    assert versus["relative_change"].round(3).tolist() == [0.1, 0.029, -0.1]
+
+
 def test_a_failing_trial_is_recorded_with_its_reason_and_the_study_goes_on(cfg, tmp_path):
     """Learning rate 1e4 makes the policy's action distribution NaN: that trial fails with its reason, the next runs."""
     spec = cfg.study("ppo-HalfCheetah-v5-masksembles")
@@ -333,6 +349,7 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     status = pd.read_csv(results / "tables" / "scaling" / "scaling_progress.csv")
     assert status["status"].tolist() == [scaling.TRAINED] + [scaling.NOT_TRAINED] * (len(scaling_cfg.runs) - 1)
     assert not pd.read_csv(results / "tables" / "scaling" / "scaling_reading.csv")["read"].any()
+    assert pd.read_csv(results / "tables" / "scaling" / "scaling_vs_paper.csv").empty  # nothing read, nothing compared
     assert "1 of 4 scaling runs trained" in (results / "tables" / "scaling" / "scaling_final_reward.md").read_text()
 
     scaling.train_missing(scaling_cfg, log=lambda line: None)
@@ -340,4 +357,6 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     final = pd.read_csv(results / "tables" / "scaling" / "scaling_final_reward.csv")
     assert len(final) == len(scaling_cfg.runs) and set(final["width"]) == {64, 96}
     assert pd.read_csv(results / "tables" / "scaling" / "scaling_reading.csv")["read"].all()
+    versus = pd.read_csv(results / "tables" / "scaling" / "scaling_vs_paper.csv")
+    assert versus["method"].tolist() == ["baseline", "masksembles"] and set(versus["ours"]) <= {"up", "flat", "down"}
     assert (results / "figures" / "scaling" / "scaling_curves.png").stat().st_size > 0

@@ -183,6 +183,36 @@ def width_reading(table: pd.DataFrame, status: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["env", "method", "narrowest", "widest", "change", "read"])
 
 
+#: Appendix E's findings, per env and method: the outcomes of widening that agree with the paper. Ant: "only
+#: Masksembles show improved performance ... The other methods may even drop"; Walker2d: "a clear improvement for
+#: Masksembles, and a slight improvement for MC Dropout, while the baseline and Ensemble policies are mainly
+#: unaffected".
+PAPER_SCALING: dict[tuple[str, str], tuple[str, ...]] = {
+    ("Ant-v5", "masksembles"): ("up",), ("Ant-v5", "baseline"): ("flat", "down"),
+    ("Ant-v5", "mc_dropout"): ("flat", "down"), ("Ant-v5", "ensemble"): ("flat", "down"),
+    ("Walker2d-v5", "masksembles"): ("up",), ("Walker2d-v5", "mc_dropout"): ("up",),
+    ("Walker2d-v5", "baseline"): ("flat",), ("Walker2d-v5", "ensemble"): ("flat",),
+}
+#: A change of the mean final reward within this share of the narrowest width's mean counts as "flat".
+FLAT_SHARE = 0.05
+
+
+def paper_comparison(change: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
+    """Each read (env, method) of `width_reading` that appendix E speaks about: our direction (the change as a
+    share of the narrowest width's mean reward; within +-FLAT_SHARE is "flat") beside the paper's."""
+    rows = []
+    for row in change[change["read"]].itertuples():
+        expected = PAPER_SCALING.get((row.env, row.method))
+        if expected is None:
+            continue
+        narrow = table[(table["env"] == row.env) & (table["method"] == row.method) & (table["width"] == row.narrowest)]
+        share = row.change / abs(float(narrow["mean"].iloc[0]))
+        ours = "flat" if abs(share) <= FLAT_SHARE else ("up" if share > 0 else "down")
+        rows.append({"env": row.env, "method": row.method, "relative_change": share, "ours": ours,
+                     "paper": " or ".join(expected), "agrees": ours in expected})
+    return pd.DataFrame(rows, columns=["env", "method", "relative_change", "ours", "paper", "agrees"])
+
+
 def final_table(final: pd.DataFrame) -> pd.DataFrame:
     """Mean ± std of the final reward per env, method and width (std over episodes and seeds)."""
     return (final.groupby(["env", "method", "width"])["reward"].agg(mean="mean", std=lambda r: float(np.std(r)),
