@@ -29,8 +29,11 @@ from paper_lib.io import write_text_atomic
 #: jupyter_client interrupts a kernel before asking it to shut down; when the interrupt lands while the kernel still
 #: answers a message, ipykernel logs "KeyboardInterrupt caught in kernel". The notebook has finished by then: the
 #: line says nothing about it, so the kernel drops that one message (installed at kernel start, before any cell).
+#: Likewise tqdm's "IProgress not found" warning (tqdm.auto without ipywidgets, imported by Optuna): it names the
+#: absolute path of the virtual environment, so the executed notebook would differ between two clones.
 QUIET_KERNEL = ("__import__('logging').getLogger('IPKernelApp').addFilter("
-                "lambda record: 'KeyboardInterrupt caught in kernel' not in record.getMessage())")
+                "lambda record: 'KeyboardInterrupt caught in kernel' not in record.getMessage()); "
+                "__import__('warnings').filterwarnings('ignore', message='IProgress not found')")
 
 #: Run metadata that differs between two executions of the same notebook on the same inputs.
 RUN_METADATA_KEYS = (

@@ -89,3 +89,17 @@ def test_notebook_runner_refuses_a_missing_notebook(tmp_path):
         run_notebook(tmp_path / "missing.ipynb", tmp_path / "out.ipynb")
     with pytest.raises(ValueError, match=".ipynb file"):
         run_notebook(QUICKSTART, tmp_path / "out.txt")
+
+
+def test_the_runner_drops_tqdms_widget_warning_and_keeps_other_warnings(tmp_path, on_path):
+    """tqdm.auto without ipywidgets warns with the venv's absolute path: two clones would write different notebooks."""
+    nb = nbformat.v4.new_notebook(metadata={"kernelspec": {"name": "python3", "display_name": "Python 3",
+                                                           "language": "python"}})
+    nb.cells = [nbformat.v4.new_code_cell(
+        "import warnings\n"
+        "warnings.warn('IProgress not found. Please update jupyter and ipywidgets.')\n"
+        "warnings.warn('a warning that says something')")]
+    source = tmp_path / "warns.ipynb"
+    nbformat.write(nb, source)
+    text = "".join(o.get("text", "") for o in _outputs(nbformat.read(run_notebook(source, tmp_path / "out.ipynb"), 4)))
+    assert "a warning that says something" in text and "IProgress" not in text
