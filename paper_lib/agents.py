@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from sb3_contrib import TRPO
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import LinearSchedule
@@ -22,8 +21,10 @@ from paper_lib.methods.groups import MemberGroupVecEnv, check_member_layout
 from paper_lib.methods.layers import validate_masksembles
 from paper_lib.methods.networks import METHODS, MemberSpec
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
+from paper_lib.trpo import MaskConsistentTRPO
 
-ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "a2c": A2C, "trpo": TRPO}
+#: sb3-contrib's TRPO, with one set of random masks per policy step for MC Dropout / DropConnect (see paper_lib.trpo).
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "a2c": A2C, "trpo": MaskConsistentTRPO}
 ASSIGNMENTS = ("shared", "own")
 #: Which of the paper's PPO settings each algorithm takes.
 ALGO_KEYS = {

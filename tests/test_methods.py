@@ -7,6 +7,7 @@ import pytest
 import torch as th
 from sb3_contrib import TRPO
 from stable_baselines3 import A2C, PPO
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from conftest import TINY
@@ -207,6 +208,46 @@ def test_a2c_and_trpo_run_unchanged(algo, cls, method):
     model.learn(256)
     mean, _ = evaluate_policy(model, model.get_env(), n_eval_episodes=2)
     assert np.isfinite(mean)
+
+
+class LineSearchLog(BaseCallback):
+    """Records TRPO's per-update line-search outcome (1 = the policy moved, 0 = step rejected)."""
+
+    def __init__(self):
+        super().__init__()
+        self.successes: list[float] = []
+
+    def _on_rollout_start(self) -> None:
+        logged = self.model.logger.name_to_value
+        if "train/is_line_search_success" in logged:
+            self.successes.append(float(logged["train/is_line_search_success"]))
+
+    def _on_step(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("method", ["mc_dropout", "mc_dropconnect"])
+def test_trpo_updates_policies_that_draw_masks(method):
+    """With fresh masks per forward pass, sb3-contrib's TRPO rejects every MC Dropout step (KL to
+    itself > target) and crashes MC DropConnect (NaN step size); one mask set per update fixes both."""
+    model = tiny_agent(method, "HalfCheetah-v5", algo="trpo")
+    log = LineSearchLog()
+    model.learn(128 * 6, callback=log)
+    assert len(log.successes) >= 4 and all(s == 1.0 for s in log.successes)
+    assert all(th.isfinite(p).all() for p in model.policy.parameters())
+
+
+def test_trpo_trains_deterministic_policies_as_sb3_contrib():
+    params = []
+    for plain in (False, True):  # built and trained one after the other: the same seeds and RNG stream
+        model = tiny_agent("masksembles", "HalfCheetah-v5", algo="trpo")
+        if plain:
+            model.__class__ = TRPO
+        model.learn(256)
+        params.append([p.detach().clone() for p in model.policy.parameters()])
+    assert all(th.equal(a, b) for a, b in zip(*params, strict=True))
+    assert not all(th.equal(a, b) for a, b in zip(params[0], tiny_agent("masksembles", "HalfCheetah-v5",
+                                                                          algo="trpo").policy.parameters()))
 
 
 def test_walker_uses_vecnormalize_and_evaluates(tmp_path):
