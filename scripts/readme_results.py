@@ -170,11 +170,20 @@ def own_vs_shared_part(tables: Path) -> str:
 
 def study_part(tables: Path) -> str:
     """Notebook 9's reading as it stands: the sweep's progress (in the caption) and each env's leaders."""
-    return (f"### The study so far: the most performant configurations (notebook 9)\n\n"
+    return (f"### The study: the most performant configurations (notebook 9)\n\n"
             f"{(tables / 'study' / 'study_reading.md').read_text().strip()}\n\n"
             f"An env is read once all its studies reached their trial target; `_members` columns leave out the "
             f"baseline, whose member-free detector is the reference point. Per-study counts: "
-            f"`{tables / 'study' / 'study_summary.md'}`.")
+            f"`{tables / 'study' / 'study_summary.md'}`."
+            + _other_algorithms_part(tables))
+
+
+def _other_algorithms_part(tables: Path) -> str:
+    """Notebook 9's check of appendix C's A2C/TRPO readings, once those studies are read."""
+    versus = tables / "study" / "study_other_algs_vs_paper.md"
+    if not versus.exists() or not len(pd.read_csv(versus.with_suffix(".csv"))):
+        return ""
+    return f"\n\nA2C and TRPO against appendix C:\n\n{versus.read_text().strip()}"
 
 
 def scaling_part(tables: Path) -> str:

@@ -171,6 +171,20 @@ def test_reading_names_the_leader_overall_and_among_member_methods():
     assert (row["largest_hypervolume_members"], row["hypervolume_members"]) == ("ensemble", 0.27)
 
 
+def test_other_algorithms_are_read_against_appendix_c():
+    summary = pd.DataFrame({"algo": ["trpo"] * 3 + ["a2c"] * 3 + ["ppo"],
+                            "env": "HalfCheetah-v5",
+                            "method": ["baseline", "masksembles", "ensemble"] * 2 + ["baseline"],
+                            "best_reward": [2676.0, 443.0, 429.0, 900.0, 1500.0, 300.0, 5000.0],
+                            "hypervolume": [0.5, 0.02, 0.03, 0.4, 0.1, 0.2, 0.5]})
+    progress = pd.DataFrame({"algo": ["trpo", "a2c"], "env": "HalfCheetah-v5", "status": [analysis.DONE, "running"]})
+    table = analysis.other_algorithms_vs_paper(summary)
+    assert table[["algo", "best_member", "largest_hypervolume_member", "agrees_behind_baseline",
+                  "agrees_masksembles_leads"]].values.tolist() == [
+        ["a2c", "masksembles", "ensemble", False, True], ["trpo", "masksembles", "ensemble", True, True]]
+    assert analysis.other_algorithms_vs_paper(summary, progress)["algo"].tolist() == ["trpo"]  # A2C not done
+
+
 # ------------------------------------------------------------------------------------------ trials and workers
 
 

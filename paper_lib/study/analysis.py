@@ -236,3 +236,43 @@ def reading(summary: pd.DataFrame, progress_table: pd.DataFrame | None = None) -
                        dict.fromkeys(members_only, ""))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+#: Appendix C's readings of fig:scatter_other_algs (A2C and TRPO on HalfCheetah), in its words.
+PAPER_OTHER_ALGORITHMS = {
+    "members_behind_baseline": "all sample-based methods seem to lack behind the baseline",
+    "masksembles_leads_members": "Masksembles still outperforms the other approaches [...] it also achieves the "
+                                 "overall best training results",
+}
+
+
+OTHER_ALGORITHMS_COLUMNS = ["algo", "env", "baseline_best_reward", "best_member", "best_member_reward",
+                            "largest_hypervolume_member", "agrees_behind_baseline",
+                            "agrees_masksembles_leads"]
+
+
+def other_algorithms_vs_paper(summary: pd.DataFrame, progress_table: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Appendix C's two readings checked per (algorithm, env) other than PPO, once all its studies are done.
+
+    "Behind the baseline": every member method's best reward is below the baseline's. "Masksembles
+    outperforms the other approaches": Masksembles has the best reward among the member methods (the
+    appendix speaks of its best training results); the member with the largest hypervolume is shown beside it.
+    """
+    rows = []
+    others = summary[summary["algo"] != "ppo"]
+    for (algo, env), group in others.groupby(["algo", "env"], sort=True):
+        if progress_table is not None:
+            mine = progress_table[(progress_table["algo"] == algo) & (progress_table["env"] == env)]
+            if (mine["status"] != DONE).any():
+                continue
+        baseline, members = group[group["method"] == "baseline"], group[group["method"] != "baseline"]
+        if baseline.empty or members.empty:
+            continue
+        best = members.loc[members["best_reward"].idxmax()]
+        behind = bool((members["best_reward"] < baseline["best_reward"].iloc[0]).all())
+        rows.append({"algo": algo, "env": env, "baseline_best_reward": float(baseline["best_reward"].iloc[0]),
+                     "best_member": best["method"], "best_member_reward": float(best["best_reward"]),
+                     "largest_hypervolume_member": members.loc[members["hypervolume"].idxmax(), "method"],
+                     "agrees_behind_baseline": behind,
+                     "agrees_masksembles_leads": best["method"] == "masksembles"})
+    return pd.DataFrame(rows, columns=OTHER_ALGORITHMS_COLUMNS)
