@@ -187,8 +187,10 @@ def independent_reading(vs_paper: pd.DataFrame, shared_metrics: pd.DataFrame,
 
 # ------------------------------------------------------------------------------- own vs shared
 
-#: The compared quantities: combined-inference reward per action mode, AUROC on the perturbed set.
-QUANTITIES = ("reward (deterministic)", "reward (sampled)", "AUROC value_std", "AUROC policy_std")
+#: The compared quantities: combined-inference reward per action mode, a single member's deterministic reward
+#: (members that learn well alone can still cancel out when combined), AUROC on the perturbed set.
+QUANTITIES = ("reward (deterministic)", "reward (sampled)", "reward (single member, deterministic)",
+              "AUROC value_std", "AUROC policy_std")
 
 
 def own_vs_shared_per_seed(evaluated: Results) -> pd.DataFrame:
@@ -200,6 +202,10 @@ def own_vs_shared_per_seed(evaluated: Results) -> pd.DataFrame:
         per = combined.groupby(["env", "method", "seed", "assignment", "deterministic"])["reward"].mean().reset_index()
         per["quantity"] = np.where(per["deterministic"], QUANTITIES[0], QUANTITIES[1])
         parts.append(per.rename(columns={"reward": "value"})[columns])
+        rewards = evaluated.rewards
+        single = rewards[(rewards["inference"] == "single") & rewards["deterministic"].astype(bool)]
+        single = single.groupby(["env", "method", "seed", "assignment"])["reward"].mean().reset_index()
+        parts.append(single.rename(columns={"reward": "value"}).assign(quantity=QUANTITIES[2])[columns])
     if not evaluated.metrics.empty:
         m = evaluated.metrics
         m = m[(m["ood_set"] == "perturbed") & m["measure"].isin(["value_std", "policy_std"])]
@@ -290,6 +296,13 @@ def own_vs_shared_reading(table: pd.DataFrame) -> list[str]:
         lines.append(f"{row.env}, {row.method}, {row.quantity}: {row.shared:.{digits}f} with the shared buffer, "
                      f"{row.own:.{digits}f} with own (own - shared {row.own_minus_shared:+.{digits}f} over "
                      f"{row.n_seeds} paired seed(s), {_spread_phrase(row)}).")
+    for (env_id, method), sub in table.groupby(["env", "method"], sort=False):
+        cells = sub.set_index("quantity")
+        if {QUANTITIES[0], QUANTITIES[2]} <= set(cells.index):
+            combined, single = cells.loc[QUANTITIES[0]], cells.loc[QUANTITIES[2]]
+            lines.append(f"{env_id}, {method}, combining the members (combined minus single-member deterministic "
+                         f"reward): {combined['shared'] - single['shared']:+.1f} with the shared buffer, "
+                         f"{combined['own'] - single['own']:+.1f} with own.")
     for env_id, sub in table.groupby("env", sort=False):
         reward = sub[sub["quantity"] == QUANTITIES[0]].set_index("method")
         if {"ensemble", "masksembles"} <= set(reward.index):

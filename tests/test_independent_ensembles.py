@@ -331,10 +331,10 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
     auroc = pd.read_csv(tables / "ensembles_independent_auroc_long.csv")
     assert set(auroc["ood_set"]) == {"perturbed", "noise"} and (auroc["n_combinations"] == 5).all()
     comparison = pd.read_csv(tables / "ensembles_own_vs_shared_long.csv")
-    assert len(comparison) == 4 and (comparison["n_seeds"] == 1).all()
+    assert len(comparison) == 5 and (comparison["n_seeds"] == 1).all()  # 3 rewards (combined x2, single), 2 AUROCs
     np.testing.assert_allclose(comparison["own_minus_shared"], comparison["own"] - comparison["shared"])
     reading = (tables / "ensembles_own_vs_shared_reading.md").read_text()
-    assert reading.count("Walker2d-v5, masksembles") == 4
+    assert reading.count("Walker2d-v5, masksembles") == 6  # a line per quantity, and the cost of combining
     independent_reading = (tables / "ensembles_independent_reading.md").read_text()
     assert f"combined inference {per_combination.mean():.1f}" in independent_reading
     assert "shared-buffer Ensemble" not in independent_reading  # this tiny main matrix has no Ensemble run
@@ -387,3 +387,16 @@ def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
     fig = own_vs_shared_figure(pd.DataFrame(rows))
     ticks = [[t.get_text() for t in ax.get_xticklabels()] for ax in fig.axes]
     assert ticks[0] == ticks[1] == ["Swimmer\nmasksembles", "Swimmer\nensemble"], ticks
+
+
+def test_own_vs_shared_reading_says_what_combining_the_members_costs():
+    from paper_lib.ensembles_report import QUANTITIES, own_vs_shared_reading, own_vs_shared_table
+
+    # HalfCheetah's own Ensemble as trained here: members strong alone, their averaged action near zero
+    values = {("shared", QUANTITIES[0]): 5270.5, ("shared", QUANTITIES[2]): 5000.0,
+              ("own", QUANTITIES[0]): 4.3, ("own", QUANTITIES[2]): 4400.0}
+    per_seed = pd.DataFrame([dict(env="HalfCheetah-v5", method="ensemble", seed=0, assignment=a, quantity=q, value=v)
+                             for (a, q), v in values.items()])
+    lines = own_vs_shared_reading(own_vs_shared_table(per_seed))
+    assert ("HalfCheetah-v5, ensemble, combining the members (combined minus single-member deterministic reward): "
+            "+270.5 with the shared buffer, -4395.7 with own.") in lines
