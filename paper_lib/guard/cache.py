@@ -29,7 +29,7 @@ TABLES = ("episodes", "returns", "traces")
 FOLDER = "experiment"
 #: Every paper_lib module a guard experiment runs (`tests/test_guard.py` checks a real run imports no other).
 SOURCE_MODULES = tuple(f"paper_lib{suffix}" for suffix in (
-    "", ".agents", ".checkpoints", ".config", ".detectors", ".envs", ".io", ".measures", ".provenance",
+    "", ".agents", ".checkpoints", ".config", ".detectors", ".envs", ".io", ".measures", ".provenance", ".trpo",
     ".uncertainty", ".guard", ".guard.cache", ".guard.conformal", ".guard.core", ".guard.experiment", ".guard.scores",
     ".guard.sequential", ".guard.settings", ".guard.shift", ".guard.wrappers", ".methods", ".methods.buffer",
     ".methods.groups", ".methods.independent", ".methods.inference", ".methods.layers", ".methods.networks",
