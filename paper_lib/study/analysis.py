@@ -204,6 +204,12 @@ def _leaders(group: pd.DataFrame) -> dict[str, object]:
 READING_COLUMNS = ["most_performant", "performant", "largest_hypervolume", "hypervolume"]
 
 
+def studies_done(progress_table: pd.DataFrame, algo: str, env: str) -> tuple[int, int]:
+    """(studies at their trial target, studies) of one (algorithm, env) in a `progress` table."""
+    mine = progress_table[(progress_table["algo"] == algo) & (progress_table["env"] == env)]
+    return int((mine["status"] == DONE).sum()), len(mine)
+
+
 def reading(summary: pd.DataFrame, progress_table: pd.DataFrame | None = None) -> pd.DataFrame:
     """Per (algorithm, env): which method has the most performant configurations and the largest hypervolume.
 
@@ -220,11 +226,7 @@ def reading(summary: pd.DataFrame, progress_table: pd.DataFrame | None = None) -
     rows = []
     for algo, env in sorted(set(map(tuple, pairs.to_numpy()))):
         group = summary[(summary["algo"] == algo) & (summary["env"] == env)]
-        if progress_table is None:
-            done = total = len(group)
-        else:
-            mine = progress_table[(progress_table["algo"] == algo) & (progress_table["env"] == env)]
-            done, total = int((mine["status"] == DONE).sum()), len(mine)
+        done, total = (len(group),) * 2 if progress_table is None else studies_done(progress_table, algo, env)
         row = {"algo": algo, "env": env, "studies_done": f"{done} of {total}"}
         members = group[group["method"] != "baseline"]
         if done < total:
@@ -244,8 +246,7 @@ PAPER_OTHER_ALGORITHMS = {
     "masksembles_leads_members": "Masksembles still outperforms the other approaches [...] it also achieves the "
                                  "overall best training results",
 }
-
-
+#: `other_algorithms_vs_paper`'s columns (an empty table has them too).
 OTHER_ALGORITHMS_COLUMNS = ["algo", "env", "baseline_best_reward", "best_member", "best_member_reward",
                             "largest_hypervolume_member", "agrees_behind_baseline",
                             "agrees_masksembles_leads"]
@@ -262,8 +263,8 @@ def other_algorithms_vs_paper(summary: pd.DataFrame, progress_table: pd.DataFram
     others = summary[summary["algo"] != "ppo"]
     for (algo, env), group in others.groupby(["algo", "env"], sort=True):
         if progress_table is not None:
-            mine = progress_table[(progress_table["algo"] == algo) & (progress_table["env"] == env)]
-            if (mine["status"] != DONE).any():
+            done, total = studies_done(progress_table, algo, env)
+            if done < total:
                 continue
         baseline, members = group[group["method"] == "baseline"], group[group["method"] != "baseline"]
         if baseline.empty or members.empty:
