@@ -83,10 +83,11 @@ def independent_reward_summary(rewards: pd.DataFrame) -> pd.DataFrame:
 
 def independent_reward_table(summary: pd.DataFrame, envs: list[str]) -> pd.DataFrame:
     """The appendix's reward table: rows inference x actions, columns env in `envs` order (the AUROC table's),
-    cells 'mean ± std over combinations'."""
+    cells 'mean ± std over combinations', '(n=...)' after each where envs have different counts (an env with one
+    combination so far has the std over its episodes, as `summarize_rewards` gives for one seed)."""
     if summary.empty:
         return pd.DataFrame(columns=["method", "inference", "actions"])
-    wide = reward_table(summary, [METHOD])
+    wide = reward_table(summary.rename(columns={"n_combinations": "n_seeds"}), [METHOD])
     return wide[["method", "inference", "actions", *[e for e in envs if e in wide.columns]]]
 
 
@@ -136,12 +137,12 @@ def independent_vs_paper(reward_summary: pd.DataFrame, auroc: pd.DataFrame, repo
     merged = paper.merge(ours_df, on=["quantity", "env"], how="left")
     merged = merged.assign(difference=merged["ours"] - merged["paper"])
     evaluated_envs = set(ours_df["env"])
+    merged["n_combinations"] = merged["n_combinations"].astype("Int64")
     merged["note"] = [
-        "" if not np.isnan(o) else
+        (_one_combination_note(q) if not pd.isna(n) and n == 1 else "") if not np.isnan(o) else
         ("not trained or collected yet" if env not in evaluated_envs else
          "max_prob is defined for discrete actions only" if q == "rocauc_max_prob" else "not evaluated")
-        for o, env, q in zip(merged["ours"], merged["env"], merged["quantity"])]
-    merged["n_combinations"] = merged["n_combinations"].astype("Int64")
+        for o, env, q, n in zip(merged["ours"], merged["env"], merged["quantity"], merged["n_combinations"])]
     return merged[["quantity", "env", "ours", "ours_std", "n_combinations", "paper", "difference", "note"]]
 
 
@@ -150,6 +151,17 @@ def shared_ensemble_metrics(cfg: EnsemblesConfig) -> pd.DataFrame:
     runs = [r for r in cfg.run.runs() if r[1] == "ensemble" and r[0] in cfg.envs
             and (scores_dir(cfg.run, *r) / "metrics.csv").is_file()]
     return read_scores(cfg.run, runs, "metrics") if runs else pd.DataFrame()
+
+
+def _one_combination_note(quantity: str) -> str:
+    """While an env has one combination, a reward's std is over that combination's episodes (as
+    `summarize_rewards` does for one seed) and an AUROC has none: say so, not 'std over combinations'."""
+    return ("one combination so far: ours_std is over its episodes" if quantity.startswith("reward")
+            else "one combination so far: no std")
+
+
+def _spread_over(n_combinations: int) -> str:
+    return "std over combinations" if n_combinations >= 2 else "std over episodes (one combination so far)"
 
 
 def independent_reading(vs_paper: pd.DataFrame, shared_metrics: pd.DataFrame,
@@ -168,9 +180,10 @@ def independent_reading(vs_paper: pd.DataFrame, shared_metrics: pd.DataFrame,
             combined, single = cells.loc["reward_combined"], cells.loc["reward_single"]
             gap, spread = combined["ours"] - single["ours"], max(combined["ours_std"], single["ours_std"])
             side = "larger than" if abs(gap) > spread else "within"
-            lines.append(f"{env_id}, reward (deterministic, mean over {combined['n_combinations']} combinations): "
+            n = int(min(combined["n_combinations"], single["n_combinations"]))
+            lines.append(f"{env_id}, reward (deterministic, mean over {n} combination{'s' if n != 1 else ''}): "
                          f"combined inference {combined['ours']:.1f}, a single member {single['ours']:.1f} "
-                         f"(combined - single {gap:+.1f}, {side} the larger std over combinations, {spread:.1f}); "
+                         f"(combined - single {gap:+.1f}, {side} the larger {_spread_over(n)}, {spread:.1f}); "
                          f"the paper {combined['paper']:.1f} and {single['paper']:.1f}.")
         parts = []
         for measure in measures:

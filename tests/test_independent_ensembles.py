@@ -351,6 +351,9 @@ def test_independent_reward_table_keeps_the_envs_in_the_appendix_order():
                                  mean=1.0, std=0.5, n_combinations=5) for env in ("Swimmer-v5", "Walker2d-v5")])
     table = independent_reward_table(summary, ["Walker2d-v5", "Swimmer-v5", "MsPacmanNoFrameskip-v4"])
     assert list(table.columns) == ["method", "inference", "actions", "Walker2d-v5", "Swimmer-v5"]
+    partial = summary.assign(n_combinations=[1, 5])  # Swimmer with one combination so far, Walker2d complete
+    cells = independent_reward_table(partial, ["Walker2d-v5", "Swimmer-v5"]).iloc[0]
+    assert (cells["Walker2d-v5"], cells["Swimmer-v5"]) == ("1.0 ± 0.5 (n=5)", "1.0 ± 0.5 (n=1)")
 
 
 def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
@@ -372,6 +375,28 @@ def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
     assert auroc == ("Swimmer-v5, AUROC on perturbed states: value_std 0.49 independent vs 0.90 shared-buffer "
                      "Ensemble (2 seed(s)).")  # policy_std: no shared-buffer score to put it beside
     assert independent_reading(vs_paper.iloc[4:], shared)[0].startswith("No independent ensemble is complete yet")
+
+
+def test_one_combination_says_its_reward_std_is_over_episodes():
+    """With one of five combinations landed, summarize_rewards' std is over that combination's episodes:
+    the table's note and the reading say so instead of calling it a std over combinations."""
+    from paper_lib.ensembles_report import independent_reading, independent_vs_paper
+
+    env = "MsPacmanNoFrameskip-v4"
+    summary = pd.DataFrame([dict(env=env, method="independent_ensemble", inference=inference, deterministic=True,
+                                 mean=mean, std=std, n_combinations=1)
+                            for inference, mean, std in (("combined", 561.0, 116.7), ("single", 480.0, 217.1))])
+    auroc = pd.DataFrame([dict(env=env, ood_set="perturbed", measure="value_std", auroc=0.74, auroc_std=np.nan,
+                               n_combinations=1)])
+    reported = pd.DataFrame([dict(quantity=q, env=env, paper=p) for q, p in
+                             (("reward_combined", 1089.2), ("reward_single", 1473.6), ("rocauc_value_std", 0.16))])
+    vs_paper = independent_vs_paper(summary, auroc, reported, [env]).set_index("quantity")
+    assert vs_paper.loc["reward_combined", "note"] == "one combination so far: ours_std is over its episodes"
+    assert vs_paper.loc["rocauc_value_std", "note"] == "one combination so far: no std"
+    reward = independent_reading(vs_paper.reset_index(), pd.DataFrame())[0]
+    assert "mean over 1 combination)" in reward
+    assert "within the larger std over episodes (one combination so far), 217.1" in reward
+    assert "std over combinations" not in reward
 
 
 def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
