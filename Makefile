@@ -24,26 +24,26 @@ $(STAMP): environment.lock pyproject.toml
 	$(BIN)/pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
-# Then the README's Results and Benchmarks tables are pasted again from what the pipeline wrote.
+# Then the README's headline table and docs/results.md, docs/benchmarks.md and docs/deviations.md are pasted again from what the pipeline wrote.
 reproduce: $(STAMP)
-	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce
+	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.reproduce
 	$(BIN)/python scripts/readme_results.py
 
 # The former name of `reproduce`.
 regenerate: reproduce
 
 recollect: $(STAMP)
-	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce --recollect
+	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.reproduce --recollect
 
 retrain: $(STAMP)
-	$(WITH_VENV) $(BIN)/python -m paper_lib.reproduce --retrain
+	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.reproduce --retrain
 
 test: $(STAMP)
 	$(WITH_VENV) $(BIN)/python -m pytest -n 2 -q tests
 
-# Same seed, same machine: same numbers. Writes nothing under results/ (paper_lib/verify.py).
+# Same seed, same machine: same numbers. Writes nothing under results/ (paper_lib/pipeline/verify.py).
 verify: $(STAMP)
-	$(WITH_VENV) $(BIN)/python -m paper_lib.verify
+	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.verify
 
 bench: $(STAMP)
 	$(BIN)/python -m paper_lib.bench

@@ -6,14 +6,14 @@
     u = uncertainty(model.policy, observations)   # value_std, policy_std, policy_js, ...
 """
 
-from paper_lib.agents import ALGORITHMS, ASSIGNMENTS, make_agent, paper_hyperparameters
-from paper_lib.envs import ATARI_ENVS, MUJOCO_ENVS, make_env
+from paper_lib.agents.envs import ATARI_ENVS, MUJOCO_ENVS, make_env
+from paper_lib.agents.factory import ALGORITHMS, ASSIGNMENTS, make_agent, paper_hyperparameters
+from paper_lib.measures.estimates import MemberOutputs, act_with_uncertainty, member_outputs, uncertainty
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
 from paper_lib.methods.groups import MemberGroupVecEnv
 from paper_lib.methods.independent import IndependentEnsemblePolicy, assemble_ensemble, load_independent_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS, METHODS
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
-from paper_lib.uncertainty import MemberOutputs, act_with_uncertainty, member_outputs, uncertainty
 
 __all__ = [
     "ALGORITHMS", "ASSIGNMENTS", "ATARI_ENVS", "INFERENCE_MODES", "MEMBER_METHODS", "METHODS", "MUJOCO_ENVS",

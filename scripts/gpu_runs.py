@@ -4,13 +4,13 @@ A lent machine (16 cores, one GPU) is held for minutes, and one call returns at 
 (64 MiB in all). So, on the machine:
 
     python scripts/gpu_runs.py launch WORK ENV METHOD SEED [ENV METHOD SEED ...]   # returns at once
-    python scripts/gpu_runs.py launch WORK --queue FILE          # or the paper_lib.train lines of a queue file
+    python scripts/gpu_runs.py launch WORK --queue FILE          # or the paper_lib.agents.training lines of a queue file
     python scripts/gpu_runs.py watch WORK --until 540 --stop     # progress every 30 s, then stop the runs
     python scripts/gpu_runs.py pack WORK --out $OUT               # again, in quick calls, until none is left
 
-`launch` starts each run as `python -m paper_lib.train ... --device cuda --env-processes` in its own
+`launch` starts each run as `python -m paper_lib.agents.training ... --device cuda --env-processes` in its own
 process session, so it outlives the call. `--queue` takes the lines the queue commands print
-(`python -m paper_lib.pipeline_status queue`, `python -m paper_lib.ensembles queue`), so any run goes
+(`python -m paper_lib.pipeline.status queue`, `python -m paper_lib.experiments.ensembles queue`), so any run goes
 with its own checkpoint folder and arguments (an independent ensemble member's `--timesteps 250000
 --hp algo.n_epochs=16`, an `own` run's `--assignment own`). `pack` sends what the runs reached: a
 finished run as its checkpoint folder (~4 MB), an unfinished one as its resume point (~20 MB with
@@ -85,15 +85,15 @@ def main_matrix_run(env_id: str, method: str, seed: int) -> dict:
 
 
 def queued_run(line: str) -> dict:
-    """A run from a queue line `... -m paper_lib.train ENV METHOD SEED FOLDER [ARGS ...]`."""
+    """A run from a queue line `... -m paper_lib.agents.training ENV METHOD SEED FOLDER [ARGS ...]`."""
     words = line.split()
     try:
-        env_id, method, seed, folder, *extra = words[words.index("paper_lib.train") + 1:]
+        env_id, method, seed, folder, *extra = words[words.index("paper_lib.agents.training") + 1:]
         seed_number = int(seed)
     except ValueError:
-        raise ValueError(f"not a queue line (`... -m paper_lib.train ENV METHOD SEED FOLDER [ARGS]`): {line!r}; "
-                         "take lines from `python -m paper_lib.pipeline_status queue` or "
-                         "`python -m paper_lib.ensembles queue`") from None
+        raise ValueError(f"not a queue line (`... -m paper_lib.agents.training ENV METHOD SEED FOLDER [ARGS]`): {line!r}; "
+                         "take lines from `python -m paper_lib.pipeline.status queue` or "
+                         "`python -m paper_lib.experiments.ensembles queue`") from None
     if Path(folder).is_absolute():
         raise ValueError(f"queue line with an absolute checkpoint folder {folder!r}: the folder must be relative to "
                          "the repository, as the queue commands print it")
@@ -107,7 +107,7 @@ def read_queue(path: Path) -> list[dict]:
 
 
 def resume_point(work: Path, run: dict) -> Path:
-    """Where paper_lib.train keeps the run's resume point (PAPER_LIB_RESUME_ROOT=WORK/resume)."""
+    """Where paper_lib.agents.training keeps the run's resume point (PAPER_LIB_RESUME_ROOT=WORK/resume)."""
     return work / "resume" / (work / checkpoint_dir(run)).relative_to("/")
 
 
@@ -128,7 +128,7 @@ def launch(work: Path, runs: list[dict], repo: Path, device: str = "cuda",
     state = load_state(work) if state_file(work).is_file() else {"launched": time.time(), "runs": []}
     for queued in runs:
         run = {**queued, "status": "running"}
-        cmd = [sys.executable, "-m", "paper_lib.train", run["env"], run["method"], str(run["seed"]),
+        cmd = [sys.executable, "-m", "paper_lib.agents.training", run["env"], run["method"], str(run["seed"]),
                str(work / checkpoint_dir(run)), *run["extra"],
                "--device", device, "--env-processes", "--resume-every", str(resume_every)]
         if timesteps is not None:
@@ -285,7 +285,7 @@ def main(argv: list[str] | None = None) -> None:
     start = sub.add_parser("launch")
     start.add_argument("work", type=Path)
     start.add_argument("runs", nargs="*", help="ENV METHOD SEED triples (main-matrix runs)")
-    start.add_argument("--queue", type=Path, help="a queue file: its unmarked paper_lib.train lines")
+    start.add_argument("--queue", type=Path, help="a queue file: its unmarked paper_lib.agents.training lines")
     start.add_argument("--device", default="cuda", help="torch device (cpu for a dry run here)")
     start.add_argument("--timesteps", type=int, default=None, help="training steps (default: the env's budget)")
     look = sub.add_parser("watch")

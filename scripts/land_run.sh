@@ -8,7 +8,7 @@ set -eu
 root=$(git rev-parse --show-toplevel)
 cd "$root"
 py="$root/.venv/bin/python"
-profile=$("$py" -c "from paper_lib.config import load_run_config; print(load_run_config().profile)")
+profile=$("$py" -c "from paper_lib.pipeline.config import load_run_config; print(load_run_config().profile)")
 wt=$(mktemp -d /tmp/land_run.XXXXXX)
 git worktree add -q --detach "$wt" HEAD
 trap 'cd "$root" && git worktree remove --force "$wt"' EXIT
@@ -18,8 +18,8 @@ while [ $# -ge 3 ]; do
   ck=results/$profile/checkpoints/$env_id/$method/seed$seed
   [ -f "$ck/model.zip" ] || { echo "error: $ck/model.zip is missing: train the run first" >&2; exit 2; }
   mkdir -p "$wt/$ck" && cp -r "$ck/." "$wt/$ck/"
-  (cd "$wt" && nice -n 5 "$py" -m paper_lib.pipeline collect "$env_id" "$method" "$seed" \
-            && nice -n 5 "$py" -m paper_lib.run_results evaluate "$env_id" "$method" "$seed")
+  (cd "$wt" && nice -n 5 "$py" -m paper_lib.pipeline.stages collect "$env_id" "$method" "$seed" \
+            && nice -n 5 "$py" -m paper_lib.pipeline.run_results evaluate "$env_id" "$method" "$seed")
   for part in datasets evaluations; do
     mkdir -p "results/$profile/$part/$env_id/$method"
     cp "$wt/results/$profile/$part/$env_id/$method/seed$seed".* "results/$profile/$part/$env_id/$method/"

@@ -1,32 +1,49 @@
-"""Paste the active profile's tables into README.md's "Results" section, and the benchmark's ratios into "Benchmarks".
+"""Paste the pipeline's tables into the README and the docs pages, each file written all or nothing.
 
-README numbers must be the pipeline's: this copies results/<profile>/tables/*.md between the markers
-`<!-- results:start -->` and `<!-- results:end -->`, with the run count from results/<profile>/runs.md
-and a short reading computed from the same tables (nothing typed by hand). Works on a partial matrix:
-cells of runs not trained yet are NaN in the tables and left out of the reading.
-The benchmark's cost ratios (results/bench/bench.csv, `make bench`) go between
-`<!-- bench:start -->` and `<!-- bench:end -->`, and the recipe probes behind "Deviations and choices"
-(results/recipe_probes/summary_by_variant.csv) between `<!-- probes:start -->` and `<!-- probes:end -->`.
+Numbers in the README and docs/ must be the pipeline's: this copies results/<profile>/tables/*.md between
+marker pairs (nothing typed by hand), one pair per place:
+- `<!-- headline:start -->` / `<!-- headline:end -->` in README.md: the one headline table
+  (`HEADLINE_TABLE`, Table 2's perturbed-state AUROC);
+- `<!-- results:start -->` / `<!-- results:end -->` in docs/results.md: every results table, with the run
+  count from results/<profile>/runs.md and a short reading computed from the same tables. Works on a partial
+  matrix: cells of runs not trained yet are NaN in the tables and left out of the reading;
+- `<!-- bench:start -->` / `<!-- bench:end -->` in docs/benchmarks.md: the benchmark's cost ratios
+  (results/bench/bench.csv, `make bench`);
+- `<!-- probes:start -->` / `<!-- probes:end -->` in docs/deviations.md: the recipe probes
+  (results/recipe_probes/summary_by_variant.csv).
+Every file is pasted in memory first (a missing marker stops the script before anything is written), then
+each is written to a temporary file beside it and moved over it (`os.replace`), so a failure never leaves a
+truncated README or page.
     python scripts/readme_results.py [PROFILE]     # default: the active profile of params.yaml
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import pandas as pd
 
+README = Path("README.md")
+RESULTS_PAGE = Path("docs/results.md")
+BENCH_PAGE = Path("docs/benchmarks.md")
+DEVIATIONS_PAGE = Path("docs/deviations.md")
+HEADLINE_START, HEADLINE_END = "<!-- headline:start -->", "<!-- headline:end -->"
+#: The README's one headline table, a file of results/<profile>/tables/.
+HEADLINE_TABLE = "ood_auroc_perturbed.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 BENCH_START, BENCH_END = "<!-- bench:start -->", "<!-- bench:end -->"
 PROBES_START, PROBES_END = "<!-- probes:start -->", "<!-- probes:end -->"
 PROBES_CSV = Path("results/recipe_probes/summary_by_variant.csv")
-#: The probe table's columns: (summary_by_variant column, README header).
+#: The probe table's columns: (summary_by_variant column, header in docs/deviations.md).
 PROBE_COLUMNS = (("seeds", "seeds"), ("train@100k", "100k"), ("train@200k", "200k"), ("train@300k", "300k"),
                  ("train@1000k", "1e6"), ("eval_deterministic", "eval det."), ("eval_sampled", "eval sampled"),
                  ("train@300k per seed", "300k per seed"))
 BENCH_METHODS = ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")
-#: README rows of the benchmark: (env, measurement, label).
+#: Rows of the benchmark table in docs/benchmarks.md: (env, measurement, label).
 BENCH_ROWS = (
     ("HalfCheetah-v5", "train_steps_per_s", "HalfCheetah training"),
     ("SeaquestNoFrameskip-v4", "train_steps_per_s", "Seaquest training"),
@@ -84,7 +101,7 @@ def reading(tables: Path) -> str:
 
 def repeated_games_line(tables: Path) -> str:
     """Notebook 2's count of the run x mode groups that replay a game, from the episodes it wrote ('' before it did)."""
-    from paper_lib.report import repeated_games, repeated_games_note
+    from paper_lib.reporting.paper_tables import repeated_games, repeated_games_note
 
     path = tables / "reward_episodes.csv"
     if not path.exists():
@@ -110,7 +127,7 @@ def training_time(results: Path) -> str:
 
 
 def bench_table(csv: Path) -> str:
-    """The methods' cost ratios against plain SB3 PPO, one row per README measurement, bold where a target is met."""
+    """The methods' cost ratios against plain SB3 PPO, one row per `BENCH_ROWS` entry, bold where a target is met."""
     bench = pd.read_csv(csv)
     lines = ["| | " + " | ".join({"masksembles": "Masksembles", "mc_dropout": "MC Dropout",
                                    "mc_dropconnect": "MC DropConnect", "ensemble": "Ensemble (k=4)"}[m]
@@ -147,7 +164,7 @@ def probe_table(csv: Path) -> str:
 
 def value_level_part(tables: Path) -> str:
     """Notebook 13's table with its computed reading: how much of value std's AUROC is the value level."""
-    from paper_lib.value_level import value_level_reading
+    from paper_lib.experiments.value_level import value_level_reading
 
     lines = value_level_reading(pd.read_csv(tables / "value_level.csv"))
     return (f"### Is value uncertainty more than a low value? (notebook 13, beyond the paper)\n\n"
@@ -193,21 +210,13 @@ def scaling_part(tables: Path) -> str:
             f"Final rewards per width: `{tables / 'scaling' / 'scaling_final_reward.md'}`.")
 
 
-def paste(readme: str, start: str, end: str, body: str) -> str:
-    """`readme` with the text between the `start` and `end` markers replaced by `body`."""
-    head, _, rest = readme.partition(start)
-    if not rest:
-        raise SystemExit(f"README.md has no {start} marker")
-    _, _, tail = rest.partition(end)
-    return head + start + "\n\n" + body + "\n\n" + end + tail
+def headline_part(tables: Path) -> str:
+    """The README's headline table: the committed `HEADLINE_TABLE` as it is, and the file it comes from."""
+    return f"{(tables / HEADLINE_TABLE).read_text(encoding='utf-8').strip()}\n\n(Pasted from `{tables / HEADLINE_TABLE}`.)"
 
 
-def main(profile: str | None = None) -> None:
-    if profile is None:
-        from paper_lib.config import load_run_config
-
-        profile = load_run_config().profile
-    results = Path("results") / profile
+def results_part(results: Path) -> str:
+    """Everything docs/results.md shows between its markers: run count, Tables 1 and 2, the readings."""
     tables = results / "tables"
     parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`). {training_time(results)}".strip(),
              f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}{repeated_games_line(tables)}",
@@ -230,13 +239,65 @@ def main(profile: str | None = None) -> None:
     versus = tables / "scaling" / "scaling_vs_paper.csv"
     if versus.exists() and len(pd.read_csv(versus)):
         parts.append(scaling_part(tables))
-    readme = paste(Path("README.md").read_text(), START, END, "\n\n".join(parts))
+    return "\n\n".join(parts)
+
+
+def paste(text: str, start: str, end: str, body: str, name: Path | str = README) -> str:
+    """`text` (the file `name`) with what lies between the `start` and `end` markers replaced by `body`."""
+    head, found, rest = text.partition(start)
+    if not found or end not in rest:
+        raise SystemExit(f"{name} has no {start} ... {end} marker pair: nothing was written")
+    _, _, tail = rest.partition(end)
+    return head + start + "\n\n" + body + "\n\n" + end + tail
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write `text` to `path` all or nothing: a temporary file beside it, moved over it with `os.replace`."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+            out.flush()
+            os.fsync(out.fileno())
+        shutil.copymode(path, tmp)  # keep the file's permissions, not mkstemp's 0600
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def pastes(profile: str) -> dict[Path, list[tuple[str, str, str]]]:
+    """Per file, the (start marker, end marker, body) pairs to paste, from the committed outputs that exist."""
+    results = Path("results") / profile
+    todo = {README: [(HEADLINE_START, HEADLINE_END, headline_part(results / "tables"))],
+            RESULTS_PAGE: [(START, END, results_part(results))]}
     bench = Path("results/bench/bench.csv")
     if bench.exists():
-        readme = paste(readme, BENCH_START, BENCH_END, bench_table(bench))
+        todo[BENCH_PAGE] = [(BENCH_START, BENCH_END, bench_table(bench))]
     if PROBES_CSV.exists():
-        readme = paste(readme, PROBES_START, PROBES_END, probe_table(PROBES_CSV))
-    Path("README.md").write_text(readme)
+        todo[DEVIATIONS_PAGE] = [(PROBES_START, PROBES_END, probe_table(PROBES_CSV))]
+    return todo
+
+
+def active_profile() -> str:
+    """The active profile of params.yaml."""
+    from paper_lib.pipeline.config import load_run_config
+
+    return load_run_config().profile
+
+
+def main(profile: str | None = None) -> None:
+    if profile is None:
+        profile = active_profile()
+    pasted = {}
+    for path, blocks in pastes(profile).items():  # every file in memory first: a missing marker writes nothing
+        text = old = path.read_text(encoding="utf-8")
+        for start, end, body in blocks:
+            text = paste(text, start, end, body, path)
+        pasted[path] = (old, text)
+    for path, (old, text) in pasted.items():
+        if text != old:
+            write_atomic(path, text)
 
 
 if __name__ == "__main__":

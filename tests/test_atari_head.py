@@ -16,7 +16,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
 from conftest import TINY
 from paper_lib import make_agent
-from paper_lib.config import load_run_config
+from paper_lib.pipeline.config import load_run_config
 from paper_lib.ood.atari_head import (
     HEAD_SOURCE,
     LABEL_HEADER,
@@ -28,8 +28,8 @@ from paper_lib.ood.atari_head import (
 )
 from paper_lib.ood.coverage import HUMAN_PLAY, source_coverage
 from paper_lib.ood.datasets import StateDataset
-from paper_lib.pipeline import collect_states
-from paper_lib.run_results import collection_actions, collection_protocol
+from paper_lib.pipeline.run_results import collection_actions, collection_protocol
+from paper_lib.pipeline.stages import collect_states
 
 # trial name -> episode id of each frame (Atari-HEAD writes "null" outside episodes)
 TRIALS = {

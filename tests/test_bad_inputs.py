@@ -1,7 +1,7 @@
 """The catalogue of bad inputs: each is ONE clear error naming the problem, and nothing on disk changes.
 
-Python API, params.yaml and the three CLIs (`paper_lib.train`, `paper_lib.config`,
-`paper_lib.pipeline`). Every case hashes the whole workspace before and after: a bad input must
+Python API, params.yaml and the three CLIs (`paper_lib.agents.training`, `paper_lib.pipeline.config`,
+`paper_lib.pipeline.stages`). Every case hashes the whole workspace before and after: a bad input must
 neither write nor delete anything. The CLI cases run in one subprocess (imports cost seconds),
 plus two plain `python -m` runs that show the real command line behaves the same.
 """
@@ -28,12 +28,12 @@ import pytest
 import yaml
 
 from paper_lib import make_agent
-from paper_lib.checkpoints import load_checkpoint
-from paper_lib.config import load_run_config, use_profile
+from paper_lib.agents.checkpoints import load_checkpoint
+from paper_lib.agents.training import train_run
 from paper_lib.ood.atari import AtariOODConfig
 from paper_lib.ood.atari_head import LABEL_HEADER, load_atari_head_states
 from paper_lib.ood.mujoco import PerturbationConfig
-from paper_lib.train import train_run
+from paper_lib.pipeline.config import load_run_config, use_profile
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -64,7 +64,7 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     """The workspace: a params.yaml copy, checkpoints with wrong identities, an Atari-HEAD copy."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from paper_lib.envs import make_env
+    from paper_lib.agents.envs import make_env
 
     root = tmp_path_factory.mktemp("bad_inputs")
     shutil.copy(REPO / "params.yaml", root / "params.yaml")
@@ -307,31 +307,31 @@ print(json.dumps(results))
 TRAIN = ["CartPole-v1", "ensemble", "0", "out"]
 #: (id, module, argv, which params file the cwd holds, regex of the one error line)
 CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
-    ("timesteps-0", "paper_lib.train", [*TRAIN, "--timesteps", "0"], "good", r"total_timesteps must be a positive integer, got 0"),
-    ("timesteps-negative", "paper_lib.train", [*TRAIN, "--timesteps", "-100"], "good", r"positive integer, got -100"),
-    ("timesteps-fraction", "paper_lib.train", [*TRAIN, "--timesteps", "2.5"], "good", r"invalid int value: '2\.5'"),
-    ("resume-every-0", "paper_lib.train", [*TRAIN, "--resume-every", "0"], "good", r"--resume-every must be a positive"),
-    ("threads-0", "paper_lib.train", [*TRAIN, "--threads", "0"], "good", r"--threads must be a positive"),
-    ("device-unknown", "paper_lib.train", [*TRAIN, "--device", "gpu0"], "good", r"--device must be a torch device such as cpu or cuda, got .gpu0."),
-    ("train-seed-negative", "paper_lib.train", ["CartPole-v1", "ensemble", "-1", "out"], "good", r"seed must be an integer >= 0"),
-    ("train-method-unknown", "paper_lib.train", ["CartPole-v1", "bayes", "0", "out"], "good", r"unknown method 'bayes'"),
-    ("train-env-unknown", "paper_lib.train", ["Hopper-v5", "ensemble", "0", "out"], "good", r"unknown environment 'Hopper-v5'"),
-    ("train-algo-unknown", "paper_lib.train", [*TRAIN, "--algo", "sac"], "good", r"unknown algorithm 'sac'"),
-    ("hp-typo", "paper_lib.train", [*TRAIN, "--hp", "algo.n_step=4"], "good", r"unknown setting 'n_step'"),
-    ("hp-lr-text", "paper_lib.train", [*TRAIN, "--hp", "algo.learning_rate=3e-4"], "good", r"write 3\.0e-4"),
-    ("hp-n-envs-0", "paper_lib.train", [*TRAIN, "--hp", "n_envs=0"], "good", r"n_envs must be an integer >= 1"),
-    ("hp-width-0", "paper_lib.train", [*TRAIN, "--hp", "hidden_sizes=[0, 64]"], "good", r"hidden_sizes\[0\] must be"),
-    ("hp-k-3", "paper_lib.train", [*TRAIN, "--hp", "members.n_members=3"], "good", r"n_envs=8 is not a multiple of n_members=3"),
-    ("config-use-unknown", "paper_lib.config", ["use", "huge"], "good", r"unknown profile 'huge'"),
-    ("config-use-broken", "paper_lib.config", ["use", "tiny"], "broken_tiny", r"profiles\.tiny.*left unchanged"),
-    ("config-show-syntax", "paper_lib.config", ["show"], "syntax", r"params\.yaml line \d+, column \d+: YAML syntax"),
-    ("config-show-lr-text", "paper_lib.config", ["show"], "lr_text", r"write 3\.0e-4"),
-    ("pipeline-bad-params", "paper_lib.pipeline", ["collect", "HalfCheetah-v5", "baseline", "0"], "budget",
+    ("timesteps-0", "paper_lib.agents.training", [*TRAIN, "--timesteps", "0"], "good", r"total_timesteps must be a positive integer, got 0"),
+    ("timesteps-negative", "paper_lib.agents.training", [*TRAIN, "--timesteps", "-100"], "good", r"positive integer, got -100"),
+    ("timesteps-fraction", "paper_lib.agents.training", [*TRAIN, "--timesteps", "2.5"], "good", r"invalid int value: '2\.5'"),
+    ("resume-every-0", "paper_lib.agents.training", [*TRAIN, "--resume-every", "0"], "good", r"--resume-every must be a positive"),
+    ("threads-0", "paper_lib.agents.training", [*TRAIN, "--threads", "0"], "good", r"--threads must be a positive"),
+    ("device-unknown", "paper_lib.agents.training", [*TRAIN, "--device", "gpu0"], "good", r"--device must be a torch device such as cpu or cuda, got .gpu0."),
+    ("train-seed-negative", "paper_lib.agents.training", ["CartPole-v1", "ensemble", "-1", "out"], "good", r"seed must be an integer >= 0"),
+    ("train-method-unknown", "paper_lib.agents.training", ["CartPole-v1", "bayes", "0", "out"], "good", r"unknown method 'bayes'"),
+    ("train-env-unknown", "paper_lib.agents.training", ["Hopper-v5", "ensemble", "0", "out"], "good", r"unknown environment 'Hopper-v5'"),
+    ("train-algo-unknown", "paper_lib.agents.training", [*TRAIN, "--algo", "sac"], "good", r"unknown algorithm 'sac'"),
+    ("hp-typo", "paper_lib.agents.training", [*TRAIN, "--hp", "algo.n_step=4"], "good", r"unknown setting 'n_step'"),
+    ("hp-lr-text", "paper_lib.agents.training", [*TRAIN, "--hp", "algo.learning_rate=3e-4"], "good", r"write 3\.0e-4"),
+    ("hp-n-envs-0", "paper_lib.agents.training", [*TRAIN, "--hp", "n_envs=0"], "good", r"n_envs must be an integer >= 1"),
+    ("hp-width-0", "paper_lib.agents.training", [*TRAIN, "--hp", "hidden_sizes=[0, 64]"], "good", r"hidden_sizes\[0\] must be"),
+    ("hp-k-3", "paper_lib.agents.training", [*TRAIN, "--hp", "members.n_members=3"], "good", r"n_envs=8 is not a multiple of n_members=3"),
+    ("config-use-unknown", "paper_lib.pipeline.config", ["use", "huge"], "good", r"unknown profile 'huge'"),
+    ("config-use-broken", "paper_lib.pipeline.config", ["use", "tiny"], "broken_tiny", r"profiles\.tiny.*left unchanged"),
+    ("config-show-syntax", "paper_lib.pipeline.config", ["show"], "syntax", r"params\.yaml line \d+, column \d+: YAML syntax"),
+    ("config-show-lr-text", "paper_lib.pipeline.config", ["show"], "lr_text", r"write 3\.0e-4"),
+    ("pipeline-bad-params", "paper_lib.pipeline.stages", ["collect", "HalfCheetah-v5", "baseline", "0"], "budget",
      r"total_timesteps must be an integer, got 2\.5"),
-    ("pipeline-no-checkpoint", "paper_lib.pipeline", ["collect", "HalfCheetah-v5", "baseline", "0"], "good",
+    ("pipeline-no-checkpoint", "paper_lib.pipeline.stages", ["collect", "HalfCheetah-v5", "baseline", "0"], "good",
      r"checkpoint file .*model\.zip is missing"),
-    ("pipeline-train-method", "paper_lib.pipeline", ["train", "HalfCheetah-v5", "bayes", "0"], "good", r"unknown method 'bayes'"),
-    ("pipeline-threads-0", "paper_lib.pipeline", ["train", "HalfCheetah-v5", "baseline", "0", "--threads", "0"], "good",
+    ("pipeline-train-method", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "bayes", "0"], "good", r"unknown method 'bayes'"),
+    ("pipeline-threads-0", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "baseline", "0", "--threads", "0"], "good",
      r"--threads must be a positive"),
 ]
 
@@ -380,8 +380,8 @@ def test_real_command_lines_fail_the_same_way(tmp_path):
     folders = _cli_workspace(tmp_path)
     before = snapshot(tmp_path)
     for cwd, args, match in (
-        (folders["broken_tiny"], ["-m", "paper_lib.config", "use", "tiny"], r"profiles\.tiny.*left unchanged"),
-        (folders["good"], ["-m", "paper_lib.train", *TRAIN, "--timesteps", "-100"], r"positive integer, got -100"),
+        (folders["broken_tiny"], ["-m", "paper_lib.pipeline.config", "use", "tiny"], r"profiles\.tiny.*left unchanged"),
+        (folders["good"], ["-m", "paper_lib.agents.training", *TRAIN, "--timesteps", "-100"], r"positive integer, got -100"),
     ):
         done = subprocess.run([sys.executable, *args], cwd=cwd, capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from paper_lib.claims import CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, paper_claims
+from paper_lib.reporting.claims import CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, paper_claims
 
 
 def _vs_baseline(sampled_ci_high: float) -> pd.DataFrame:

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from paper_lib.agents import paper_hyperparameters
-from paper_lib.checkpoints import load_checkpoint
-from paper_lib.config import load_run_config, use_profile
-from paper_lib.train import train_run
+from paper_lib.agents.checkpoints import load_checkpoint
+from paper_lib.agents.factory import paper_hyperparameters
+from paper_lib.agents.training import train_run
+from paper_lib.pipeline.config import load_run_config, use_profile
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,7 @@ def test_committed_profile_is_valid_and_profiles_switch(params):
     use_profile("paper", params)
     paper = load_run_config(params)
     assert paper.seeds == [0, 1, 2]
-    # Ant at 1e6 steps, not the paper's 1e7 (README, "Deviations"); every other env at its own budget
+    # Ant at 1e6 steps, not the paper's 1e7 (docs/deviations.md); every other env at its own budget
     assert paper.budget("Ant-v5") == 1_000_000 and paper.budget("HalfCheetah-v5") is None
     assert "the paper's (except Ant-v5 1,000,000)" in paper.budget_caption()
 
@@ -169,7 +169,7 @@ def test_each_algorithm_is_recognized_from_its_own_zip(tmp_path):
 
 def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
     """`pipeline_status queue`: what `make retrain` would train, as resumable lines, seed 0 of every env first."""
-    from paper_lib.pipeline_status import queue_lines
+    from paper_lib.pipeline.status import queue_lines
 
     use_profile("paper", params)
     cfg = load_run_config(params)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from paper_lib.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
-from paper_lib.metrics import detection_metrics
+from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
+from paper_lib.scoring.metrics import detection_metrics
 
 # Four corners of a square: mean (1, 1), per-feature std 1 (ddof=0), zero correlation,
 # so after standardization the covariance is the identity and Mahalanobis = Euclidean.

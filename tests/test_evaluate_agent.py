@@ -7,8 +7,8 @@ import pytest
 from stable_baselines3 import A2C, PPO
 
 from paper_lib import make_agent, paper_hyperparameters
-from paper_lib.envs import make_env
-from paper_lib.evaluate_agent import Budget, evaluate_agent, main
+from paper_lib.agents.envs import make_env
+from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent, main
 
 TINY_BUDGET = Budget(configs=2, steps_per_config=10, id_episodes=4, skip_first=2, max_episode_steps=20,
                      n_bootstrap=20, n_scoring_seeds=2)

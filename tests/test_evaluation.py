@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from paper_lib.agents import make_agent
-from paper_lib.checkpoints import Checkpoint
-from paper_lib.evaluation import evaluate_rewards
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.agents.factory import make_agent
+from paper_lib.scoring.rewards import evaluate_rewards
 
 
 @pytest.mark.parametrize(("env_id", "modes"), [("BerzerkNoFrameskip-v4", [False]),

@@ -17,11 +17,11 @@ from gymnasium import spaces
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from torch import nn
 
-from paper_lib import measures
+from paper_lib.measures import definitions as measures
 from paper_lib.methods import inference
 from paper_lib.methods.networks import MEMBER_METHODS
 from paper_lib.methods.policy import MemberActorCriticPolicy, draw_state_seeds
-from paper_lib.uncertainty import (
+from paper_lib.measures.estimates import (
     act_with_uncertainty,
     member_outputs,
     policy_features,

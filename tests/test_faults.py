@@ -1,6 +1,6 @@
 """kill -9 at random points of training and of collection: no complete artifact is ever lost.
 
-Each run is a real command line (`python -m paper_lib.train`, `python -m paper_lib.pipeline
+Each run is a real command line (`python -m paper_lib.agents.training`, `python -m paper_lib.pipeline.stages
 collect`) killed with SIGKILL by PID at a seeded random point of its expected CPU time (every
 other kill late in the run, where the artifact is written; CPU time, so that the load of the
 machine does not move the points). While it runs, the artifact that
@@ -25,10 +25,10 @@ import numpy as np
 import yaml
 from stable_baselines3 import PPO
 
-from paper_lib.config import load_run_config
+from paper_lib.agents.training import resume_dir_for
 from paper_lib.ood.datasets import StateDataset
-from paper_lib.pipeline import train_stage
-from paper_lib.train import resume_dir_for
+from paper_lib.pipeline.config import load_run_config
+from paper_lib.pipeline.stages import train_stage
 
 REPO = Path(__file__).resolve().parents[1]
 CHECKPOINT_FILES = {"model.zip", "config.json", "training_curve.csv"}
@@ -109,7 +109,7 @@ def test_kill_9_during_training_never_loses_a_checkpoint(tmp_path):
     resume = resume_dir_for(out)
 
     def cmd(steps: int) -> list[str]:
-        return [sys.executable, "-m", "paper_lib.train", "CartPole-v1", "ensemble", "0", str(out),
+        return [sys.executable, "-m", "paper_lib.agents.training", "CartPole-v1", "ensemble", "0", str(out),
                 "--timesteps", str(steps), "--resume-every", "128"]
 
     budget = 256
@@ -145,7 +145,7 @@ def tiny_params(tmp_path: Path) -> Path:
     return path
 
 
-#: `python -m paper_lib.pipeline ARGS`, except that the dataset's bytes are written in two halves one
+#: `python -m paper_lib.pipeline.stages ARGS`, except that the dataset's bytes are written in two halves one
 #: second apart: a kill can then be aimed into the write itself, which otherwise lasts milliseconds.
 SLOW_WRITE = r"""
 import io, runpy, sys, time
@@ -160,8 +160,8 @@ def savez_in_two_halves(file, *args, **kwargs):
     time.sleep(1.0)
     file.write(data[len(data) // 2:])
 np.savez_compressed = savez_in_two_halves
-sys.argv = ["paper_lib.pipeline", *sys.argv[1:]]
-runpy.run_module("paper_lib.pipeline", run_name="__main__", alter_sys=True)
+sys.argv = ["paper_lib.pipeline.stages", *sys.argv[1:]]
+runpy.run_module("paper_lib.pipeline.stages", run_name="__main__", alter_sys=True)
 """
 
 
@@ -200,7 +200,7 @@ def test_kill_9_during_collection_never_loses_a_dataset(tmp_path, monkeypatch):
     cfg = load_run_config(params)
     train_stage(cfg, "HalfCheetah-v5", "baseline", 0)
     dataset = cfg.dataset_path("HalfCheetah-v5", "baseline", 0)
-    cmd = [sys.executable, "-m", "paper_lib.pipeline", "--params", str(params), "collect", "HalfCheetah-v5", "baseline", "0"]
+    cmd = [sys.executable, "-m", "paper_lib.pipeline.stages", "--params", str(params), "collect", "HalfCheetah-v5", "baseline", "0"]
 
     cpu = finish(cmd, tmp_path)
     first = StateDataset.load(dataset)

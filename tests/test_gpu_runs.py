@@ -24,9 +24,9 @@ def load_gpu_runs():
 def test_a_finished_and_a_stopped_run_come_back_and_the_stopped_one_resumes_here(tmp_path, monkeypatch):
     gpu_runs = load_gpu_runs()
     work, out, here, resume_root = (tmp_path / name for name in ("work", "out", "here", "resume"))
-    queue = tmp_path / "queue.txt"  # as `python -m paper_lib.ensembles queue` prints it: own folder, own arguments
-    queue.write_text("#done env X=1 python -m paper_lib.train CartPole-v1 mc_dropout 1 results/x/seed1\n"
-                     "env PAPER_LIB_RESUME_ROOT=/r .venv/bin/python -m paper_lib.train CartPole-v1 baseline 0 "
+    queue = tmp_path / "queue.txt"  # as `python -m paper_lib.experiments.ensembles queue` prints it: own folder, own arguments
+    queue.write_text("#done env X=1 python -m paper_lib.agents.training CartPole-v1 mc_dropout 1 results/x/seed1\n"
+                     "env PAPER_LIB_RESUME_ROOT=/r .venv/bin/python -m paper_lib.agents.training CartPole-v1 baseline 0 "
                      "results/paper/independent/checkpoints/CartPole-v1/baseline/seed0 --timesteps 512 --hp algo.n_epochs=2\n")
     gpu_runs.launch(work, gpu_runs.read_queue(queue), REPO, device="cpu")
     gpu_runs.launch(work, [gpu_runs.main_matrix_run("CartPole-v1", "mc_dropout", 0)], REPO, device="cpu",
@@ -71,7 +71,7 @@ def test_a_finished_and_a_stopped_run_come_back_and_the_stopped_one_resumes_here
     assert placed.read_bytes() == original
 
     ckpt = here / gpu_runs.checkpoint_dir(stopped)
-    done = subprocess.run([sys.executable, "-m", "paper_lib.train", "CartPole-v1", "mc_dropout", "0", str(ckpt),
+    done = subprocess.run([sys.executable, "-m", "paper_lib.agents.training", "CartPole-v1", "mc_dropout", "0", str(ckpt),
                            "--timesteps", str(reached + 256), "--device", "cpu"], cwd=REPO, capture_output=True, text=True,
                           timeout=300, env={"PAPER_LIB_RESUME_ROOT": str(resume_root), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
@@ -86,10 +86,10 @@ def test_bad_inputs_are_one_error_each_and_write_nothing(tmp_path):
                               capture_output=True, text=True, timeout=60)
 
     queue = tmp_path / "queue.txt"
-    queue.write_text("python -m paper_lib.train CartPole-v1 baseline zero results/x\n")
+    queue.write_text("python -m paper_lib.agents.training CartPole-v1 baseline zero results/x\n")
     done = gpu_runs("launch", str(tmp_path / "work"), "--queue", str(queue))
-    assert done.returncode == 2 and "paper_lib.pipeline_status queue" in done.stderr, done.stderr
-    queue.write_text("python -m paper_lib.train CartPole-v1 baseline 0 /tmp/elsewhere\n")
+    assert done.returncode == 2 and "paper_lib.pipeline.status queue" in done.stderr, done.stderr
+    queue.write_text("python -m paper_lib.agents.training CartPole-v1 baseline 0 /tmp/elsewhere\n")
     done = gpu_runs("launch", str(tmp_path / "work"), "--queue", str(queue))
     assert done.returncode == 2 and "relative to the repository" in done.stderr, done.stderr
     done = gpu_runs("launch", str(tmp_path / "work"), "CartPole-v1", "baseline", "zero")

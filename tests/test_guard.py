@@ -23,8 +23,8 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from paper_lib import make_agent
-from paper_lib.checkpoints import load_checkpoint
-from paper_lib.envs import make_single_env
+from paper_lib.agents.checkpoints import load_checkpoint
+from paper_lib.agents.envs import make_single_env
 from paper_lib.guard import (
     CallableScore,
     CombinedScore,
@@ -60,7 +60,7 @@ TEST_GUARD = {"alpha": 0.2, "window": 3, "cusum_quantile": 0.9, "fallback": "zer
 @pytest.fixture(scope="module")
 def tiny_repo(tmp_path_factory) -> Path:
     """params.yaml with the tiny profile active, and its two checkpoints trained (256 steps each)."""
-    from paper_lib.pipeline import train_stage
+    from paper_lib.pipeline.stages import train_stage
 
     root = tmp_path_factory.mktemp("guard_repo")
     params = yaml.safe_load((REPO / "params.yaml").read_text())
@@ -551,9 +551,9 @@ def test_the_fingerprint_covers_every_module_a_guard_experiment_runs(tiny_repo):
     # a fresh interpreter: which paper_lib modules does a real (tiny) guard experiment import?
     script = f"""
 import sys
+from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.guard.cache import cached_experiment
 from paper_lib.guard.settings import load_settings
-from paper_lib.checkpoints import load_checkpoint
 from paper_lib.ood.collect import ActionMode
 cfg, settings = load_settings({str(tiny_repo / 'params.yaml')!r})
 run = load_checkpoint(cfg.checkpoint_dir({ENV!r}, 'masksembles', 0))

@@ -17,15 +17,15 @@ from conftest import TINY
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
-from paper_lib import ensembles as ens
 from paper_lib import make_agent, member_outputs, uncertainty
-from paper_lib.checkpoints import load_checkpoint
-from paper_lib.envs import make_env
+from paper_lib.agents.checkpoints import load_checkpoint
+from paper_lib.agents.envs import make_env
+from paper_lib.experiments import ensembles as ens
+from paper_lib.measures.estimates import policy_features
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
 from paper_lib.methods.groups import member_of_env
 from paper_lib.methods.independent import IndependentEnsemblePolicy, assemble_ensemble, load_independent_ensemble
 from paper_lib.methods.policy import combine_actions
-from paper_lib.uncertainty import policy_features
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -228,11 +228,11 @@ def test_four_of_five_combinations_the_rule_and_the_queue(tmp_path, capsys):
         steps, epochs = cfg.member_budget(env_id)
         assert steps * 4 == hps[env_id]["total_timesteps"] and epochs == 4 * hps[env_id]["algo"]["n_epochs"]
     assert ens.member_command(cfg, "Walker2d-v5", 3, "/work/resume") == (
-        "env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.train Walker2d-v5 baseline 3 "
+        "env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 3 "
         f"{tmp_path}/results/paper/independent/checkpoints/Walker2d-v5/baseline/seed3 --timesteps 250000 "
         "--hp algo.n_epochs=40")
     assert ens.run_command(cfg, "own", "Swimmer-v5", "ensemble", 2) == (
-        f".venv/bin/python -m paper_lib.train Swimmer-v5 ensemble 2 {tmp_path}/results/paper/own/checkpoints/"
+        f".venv/bin/python -m paper_lib.agents.training Swimmer-v5 ensemble 2 {tmp_path}/results/paper/own/checkpoints/"
         "Swimmer-v5/ensemble/seed2 --assignment own")
 
     (tmp_path / "tiny").mkdir()
@@ -293,7 +293,7 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
         {"envs": ["Walker2d-v5"], "member_seeds": [0, 1, 2, 3, 4], "total_timesteps": None},
         {"envs": ["Walker2d-v5"], "methods": ["masksembles"], "seeds": [0, 1]}))
     cfg = ens.load_ensembles_config(params)
-    from paper_lib.pipeline import train_stage
+    from paper_lib.pipeline.stages import train_stage
 
     ens.main(["--params", str(params), "train", "independent"])
     ens.main(["--params", str(params), "train", "own", "--seed", "0"])
@@ -345,7 +345,7 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
 
 
 def test_independent_reward_table_keeps_the_envs_in_the_appendix_order():
-    from paper_lib.ensembles_report import independent_reward_table
+    from paper_lib.experiments.ensembles_report import independent_reward_table
 
     summary = pd.DataFrame([dict(env=env, method="independent_ensemble", inference="combined", deterministic=True,
                                  mean=1.0, std=0.5, n_combinations=5) for env in ("Swimmer-v5", "Walker2d-v5")])
@@ -357,7 +357,7 @@ def test_independent_reward_table_keeps_the_envs_in_the_appendix_order():
 
 
 def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
-    from paper_lib.ensembles_report import independent_reading
+    from paper_lib.experiments.ensembles_report import independent_reading
 
     vs_paper = pd.DataFrame([
         dict(quantity="reward_combined", env="Swimmer-v5", ours=0.5, ours_std=23.6, n_combinations=5, paper=0.38),
@@ -380,7 +380,7 @@ def test_independent_reading_puts_each_appendix_claim_to_the_numbers():
 def test_one_combination_says_its_reward_std_is_over_episodes():
     """With one of five combinations landed, summarize_rewards' std is over that combination's episodes:
     the table's note and the reading say so instead of calling it a std over combinations."""
-    from paper_lib.ensembles_report import independent_reading, independent_vs_paper
+    from paper_lib.experiments.ensembles_report import independent_reading, independent_vs_paper
 
     env = "MsPacmanNoFrameskip-v4"
     summary = pd.DataFrame([dict(env=env, method="independent_ensemble", inference=inference, deterministic=True,
@@ -400,7 +400,7 @@ def test_one_combination_says_its_reward_std_is_over_episodes():
 
 
 def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
-    from paper_lib.ensembles_report import own_vs_shared_figure
+    from paper_lib.experiments.ensembles_report import own_vs_shared_figure
 
     rows = []
     for quantity, methods in (("reward (deterministic)", ["ensemble", "masksembles"]),
@@ -415,7 +415,7 @@ def test_own_vs_shared_figure_keeps_one_method_order_in_every_panel():
 
 
 def test_own_vs_shared_reading_says_what_combining_the_members_costs():
-    from paper_lib.ensembles_report import QUANTITIES, own_vs_shared_reading, own_vs_shared_table
+    from paper_lib.experiments.ensembles_report import QUANTITIES, own_vs_shared_reading, own_vs_shared_table
 
     # HalfCheetah's own Ensemble as trained here: members strong alone, their averaged action near zero
     values = {("shared", QUANTITIES[0]): 5270.5, ("shared", QUANTITIES[2]): 5000.0,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from paper_lib import measures
+from paper_lib.measures import definitions as measures
 
 VALUES = np.array([[1.0, 0.0], [3.0, 0.0], [1.0, 0.0], [3.0, 0.0]])  # (k=4, N=2)
 

@@ -452,7 +452,7 @@ def test_keep_mask_drops_each_entry_with_probability_p(p):
 
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "HalfCheetah-v5"])
 def test_act_with_uncertainty_equals_predict_plus_uncertainty(env_id):
-    from paper_lib.uncertainty import act_with_uncertainty
+    from paper_lib.measures.estimates import act_with_uncertainty
 
     model = tiny_agent("ensemble", env_id)
     obs = model.env.reset()

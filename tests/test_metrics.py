@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from paper_lib.metrics import bootstrap_auroc_ci, detection_metrics, metrics_table, roc_points
+from paper_lib.scoring.metrics import bootstrap_auroc_ci, detection_metrics, metrics_table, roc_points
 
 # Hand-computed 3-vs-3 example. Sorted by score (descending): 0.9 O, 0.8 O, 0.4 I, 0.35 I, 0.3 O, 0.1 I.
 ID_3 = [0.1, 0.4, 0.35]
@@ -146,7 +146,7 @@ def _tight_clusters(rng, n_clusters=5, size=200):
 
 
 def test_cluster_bootstrap_is_wider_than_the_state_bootstrap_on_tight_clusters():
-    from paper_lib.metrics import cluster_bootstrap_auroc
+    from paper_lib.scoring.metrics import cluster_bootstrap_auroc
 
     id_s, ood_s, labels = _tight_clusters(np.random.default_rng(0))
     state = bootstrap_auroc_ci(id_s, ood_s, np.random.default_rng(1), n_boot=500)
@@ -163,7 +163,7 @@ def test_cluster_bootstrap_is_wider_than_the_state_bootstrap_on_tight_clusters()
 def test_weighted_auroc_matches_sklearn_with_sample_weights():
     from sklearn.metrics import roc_auc_score
 
-    from paper_lib.metrics import _weighted_aurocs
+    from paper_lib.scoring.metrics import _weighted_aurocs
 
     rng = np.random.default_rng(0)
     id_s, ood_s = np.round(rng.normal(0, 1, 50), 1), np.round(rng.normal(0.5, 1, 40), 1)  # with ties
@@ -176,7 +176,7 @@ def test_weighted_auroc_matches_sklearn_with_sample_weights():
 
 def test_shared_clusters_are_resampled_together():
     """Noise OOD states made from ID episode e share e's label: one draw moves both sides."""
-    from paper_lib.metrics import cluster_bootstrap_auroc
+    from paper_lib.scoring.metrics import cluster_bootstrap_auroc
 
     labels = np.repeat(["e0", "e1", "e2"], 10)
     id_s = np.repeat([0.0, 1.0, 2.0], 10)
@@ -187,7 +187,7 @@ def test_shared_clusters_are_resampled_together():
 
 
 def test_seed_cluster_ci_resamples_seeds_then_clusters():
-    from paper_lib.metrics import seed_cluster_ci
+    from paper_lib.scoring.metrics import seed_cluster_ci
 
     rng = np.random.default_rng(0)
     reps = [rng.normal(mean, 0.01, 1000) for mean in (0.6, 0.7, 0.8)]
@@ -199,7 +199,7 @@ def test_seed_cluster_ci_resamples_seeds_then_clusters():
 
 
 def test_metrics_over_scoring_seeds_report_their_spread():
-    from paper_lib.metrics import measure_metrics
+    from paper_lib.scoring.metrics import measure_metrics
 
     rng = np.random.default_rng(0)
     id_s, ood_s = rng.normal(0, 1, (3, 100)), rng.normal(0.5, 1, (3, 80))  # 3 scoring seeds

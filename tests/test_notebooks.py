@@ -13,7 +13,7 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from paper_lib.notebook_run import run_notebook, strip_run_metadata
+from paper_lib.pipeline.notebook_run import run_notebook, strip_run_metadata
 
 REPO = Path(__file__).resolve().parents[1]
 QUICKSTART = REPO / "notebooks" / "00_quickstart.ipynb"
@@ -21,7 +21,7 @@ QUICKSTART = REPO / "notebooks" / "00_quickstart.ipynb"
 
 @pytest.fixture(scope="module")
 def tiny_checkpoint(tmp_path_factory) -> Path:
-    from paper_lib.train import train_run
+    from paper_lib.agents.training import train_run
 
     out = tmp_path_factory.mktemp("agent") / "HalfCheetah-v5" / "masksembles" / "seed0"
     return train_run("HalfCheetah-v5", "masksembles", 0, out, total_timesteps=256, resume=False,
@@ -49,7 +49,7 @@ def test_quickstart_on_a_tiny_agent_shows_uncertainty_against_detectors(tiny_che
     text = "\n".join(o.get("data", {}).get("text/markdown", "") for o in outputs)
     assert "masksembles" in text and "flags" in text  # the computed summary of the run
     assert (tmp_path / "figures" / "quickstart_timeline.png").stat().st_size > 0
-    from paper_lib.rendering import mujoco_rendering_problem
+    from paper_lib.reporting.rendering import mujoco_rendering_problem
 
     if mujoco_rendering_problem() is None:  # EGL works: timeline and frames; without it, a note instead of frames
         assert len(images) == 2 and (tmp_path / "figures" / "quickstart_frames.png").is_file()

@@ -15,13 +15,13 @@ import pytest
 
 from conftest import TINY
 from paper_lib import make_agent
-from paper_lib.checkpoints import Checkpoint
+from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.ood import collect as collect_module
 from paper_lib.ood.atari import AtariOODConfig, make_ood_atari_env
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states
 from paper_lib.ood.coverage import COVERAGE_COLUMNS, FAILED, NOT_CHECKED, PASSED, STALE, source_coverage
 from paper_lib.ood.datasets import StateDataset, concat
-from paper_lib.run_results import read_source_coverage, score_files, score_run_files
+from paper_lib.pipeline.run_results import read_source_coverage, score_files, score_run_files
 
 GAME = "Berzerk"
 ENV = f"{GAME}NoFrameskip-v4"
@@ -132,7 +132,7 @@ def test_the_score_stage_writes_the_check_of_atari_runs(agent, dataset, tmp_path
     cfg = _Profile(tmp_path)
     dataset.save(cfg.dataset_path(ENV, "baseline", 0))
     checkpoint = Checkpoint(agent, agent.paper_lib_config, None, tmp_path)
-    monkeypatch.setattr("paper_lib.checkpoints.load_checkpoint", lambda *args: checkpoint)
+    monkeypatch.setattr("paper_lib.agents.checkpoints.load_checkpoint", lambda *args: checkpoint)
     folder = score_run_files(cfg, ENV, "baseline", 0)
     assert sorted(p.name for p in folder.iterdir()) == sorted(score_files(ENV))
     table = read_source_coverage(cfg, [(ENV, "baseline", 0), ("HalfCheetah-v5", "baseline", 0)])

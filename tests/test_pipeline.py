@@ -49,7 +49,7 @@ def _git(repo: Path, *args: str) -> str:
 
 
 def _reproduce(repo: Path) -> subprocess.CompletedProcess:
-    done = _run([str(BIN / "python"), "-m", "paper_lib.reproduce"], repo)
+    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.reproduce"], repo)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done
 
@@ -57,7 +57,7 @@ def _reproduce(repo: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def tiny_repo(tmp_path_factory) -> Path:
     repo = _copy_repo(tmp_path_factory.mktemp("repo"))
-    done = _run([str(BIN / "python"), "-m", "paper_lib.config", "use", "tiny"], repo)
+    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.config", "use", "tiny"], repo)
     assert done.returncode == 0, done.stderr
     params = yaml.safe_load((repo / "params.yaml").read_text())
     assert params["run"]["seeds"] == [0]
@@ -152,7 +152,7 @@ def test_a_stage_with_a_missing_checkpoint_fails_clearly_and_writes_nothing(tiny
     (repo / "results/tiny/checkpoints/HalfCheetah-v5/masksembles/seed0/model.zip").unlink()
     evaluation = repo / "results/tiny/evaluations/HalfCheetah-v5/masksembles/seed0.csv"
     evaluation.unlink()
-    done = _run([str(BIN / "python"), "-m", "paper_lib.run_results", "evaluate", "HalfCheetah-v5", "masksembles", "0"],
+    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.run_results", "evaluate", "HalfCheetah-v5", "masksembles", "0"],
                 repo)
     assert done.returncode == 2
     assert "model.zip is missing" in done.stderr and "dvc repro -f -s train@" in done.stderr
@@ -161,8 +161,8 @@ def test_a_stage_with_a_missing_checkpoint_fails_clearly_and_writes_nothing(tiny
 
 
 def test_verify_recomputes_committed_results_aside_and_finds_a_changed_number(tiny_repo):
-    """`python -m paper_lib.verify`: same seed, same machine, same files; an edited committed number is found."""
-    verify = [str(BIN / "python"), "-m", "paper_lib.verify", "--all", "--stages", "evaluate", "score"]
+    """`python -m paper_lib.pipeline.verify`: same seed, same machine, same files; an edited committed number is found."""
+    verify = [str(BIN / "python"), "-m", "paper_lib.pipeline.verify", "--all", "--stages", "evaluate", "score"]
     before = _git(tiny_repo, "status", "--porcelain")
     done = _run(verify, tiny_repo)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
@@ -177,7 +177,7 @@ def test_verify_recomputes_committed_results_aside_and_finds_a_changed_number(ti
     cells[auroc] = repr(float(cells[auroc]) + 0.001)
     try:
         metrics.write_text("".join([header, ",".join(cells), *rest]))
-        done = _run([str(BIN / "python"), "-m", "paper_lib.verify", "--run", "HalfCheetah-v5", "masksembles", "0"],
+        done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.verify", "--run", "HalfCheetah-v5", "masksembles", "0"],
                     tiny_repo)
     finally:
         metrics.write_text(committed)

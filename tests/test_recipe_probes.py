@@ -5,7 +5,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from paper_lib.recipe_probes import by_variant
+from paper_lib.experiments.recipe_probes import by_variant
 
 
 def test_seeds_of_a_variant_are_averaged_and_listed():

@@ -7,9 +7,9 @@ import dataclasses
 import json
 from pathlib import Path
 
-from paper_lib.config import load_run_config
-from paper_lib.pipeline_status import remaining_training_line, training_time_line
-from paper_lib.reproduce import experiment_stages, make_ensemble_folders, table_stages
+from paper_lib.pipeline.config import load_run_config
+from paper_lib.pipeline.reproduce import experiment_stages, make_ensemble_folders, table_stages
+from paper_lib.pipeline.status import remaining_training_line, training_time_line
 
 REPO = Path(__file__).resolve().parents[1]
 

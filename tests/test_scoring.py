@@ -12,12 +12,12 @@ from scipy.stats import ks_2samp
 
 from conftest import TINY
 from paper_lib import act_with_uncertainty, make_agent, member_outputs, paper_hyperparameters, uncertainty
-from paper_lib.checkpoints import Checkpoint
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.measures.estimates import policy_features
 from paper_lib.methods.layers import MCDropout, MemberConv2d, MemberLinear, per_state_masks
 from paper_lib.ood.collect import ActionMode, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import concat
-from paper_lib.ood_eval import score_run, summarize_seeds
-from paper_lib.uncertainty import policy_features
+from paper_lib.scoring.ood_scores import score_run, summarize_seeds
 
 MC_METHODS = ["mc_dropconnect", "mc_dropout"]
 

@@ -11,8 +11,8 @@ import pytest
 
 from conftest import TINY
 from paper_lib import make_agent
-from paper_lib.checkpoints import Checkpoint
-from paper_lib.spawn import (ROLLOUT_COLUMNS, floor_contacts, relative_uncertainty, spawn_reading, spawn_rollouts,
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.experiments.spawn import (ROLLOUT_COLUMNS, floor_contacts, relative_uncertainty, spawn_reading, spawn_rollouts,
                              spawn_summary, spawn_table)
 
 

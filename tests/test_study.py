@@ -126,7 +126,7 @@ def test_search_space_and_budgets_are_checked_where_they_enter(root, tmp_path):
 
 
 def test_sampled_settings_reach_make_agent(cfg):
-    from paper_lib.agents import make_agent
+    from paper_lib.agents.factory import make_agent
 
     spec = cfg.study("ppo-HalfCheetah-v5-masksembles")
     params = {"width": 64, "activation_fn": "tanh", "n_members": 2, "masksembles_scale": 3.0, "learning_rate": 1e-4,

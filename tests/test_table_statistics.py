@@ -14,8 +14,8 @@ import pytest
 from scipy.stats import norm
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
-from paper_lib import report
-from paper_lib.metrics import difference_ci, mean_replicates, seed_cluster_ci, seed_cluster_difference
+from paper_lib.reporting import paper_tables as report
+from paper_lib.scoring.metrics import difference_ci, mean_replicates, seed_cluster_ci, seed_cluster_difference
 
 REPO = Path(__file__).resolve().parents[1]
 CPU = REPO / "results" / "cpu"
@@ -211,7 +211,7 @@ def cpu_cfg():
 
 @needs_cpu
 def test_committed_rewards_pair_combined_inference_with_the_baseline(cpu_cfg):
-    from paper_lib.run_results import read_evaluations
+    from paper_lib.pipeline.run_results import read_evaluations
 
     episodes = read_evaluations(cpu_cfg, cpu_cfg.runs)
     long = report.reward_vs_baseline(episodes, [m for _, m, _ in cpu_cfg.runs[:5]], n_boot=300)
@@ -230,7 +230,7 @@ def test_committed_rewards_pair_combined_inference_with_the_baseline(cpu_cfg):
 def test_committed_replicates_of_two_measures_share_resamples(cpu_cfg):
     """Why REPLICATES_SHARE_RESAMPLES is True: two detectors with nearly the same AUROC on the same states
     move together over the shared cluster resamples (5 OOD configurations)."""
-    from paper_lib.run_results import read_replicates
+    from paper_lib.pipeline.run_results import read_replicates
 
     reps = read_replicates(cpu_cfg, ("HalfCheetah-v5", "baseline", 0))
     a, b = reps[("perturbed", "knn_features")], reps[("perturbed", "mahalanobis_features")]
@@ -241,10 +241,10 @@ def test_committed_replicates_of_two_measures_share_resamples(cpu_cfg):
 
 @needs_cpu
 def test_committed_pooled_auroc_with_one_seed_is_each_runs_own(cpu_cfg):
-    from paper_lib.run_results import read_scores
+    from paper_lib.pipeline.run_results import read_all_replicates, read_scores
 
     metrics = read_scores(cpu_cfg, cpu_cfg.runs, "metrics")
-    replicates = report.read_all_replicates(cpu_cfg, cpu_cfg.runs)
+    replicates = read_all_replicates(cpu_cfg, cpu_cfg.runs)
     pooled = report.pooled_auroc(metrics, replicates, n_boot=200)
     merged = pooled.merge(metrics, on=["env", "method", "ood_set", "measure"], suffixes=("", "_run"))
     assert len(merged) == len(metrics) and (pooled.n_seeds == 1).all() and pooled.auroc_seed_std.isna().all()
@@ -294,7 +294,7 @@ def test_episode_i_starts_alike_whatever_the_policy(env_id):
     any policy (its steps draw nothing from the env's generator), and from another state under another seed."""
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from paper_lib.envs import make_env
+    from paper_lib.agents.envs import make_env
 
     starts = {}
     for name, seed, env_seed in (("zero", None, 10_000), ("random", 1, 10_000), ("other seed", None, 10_001)):
@@ -308,7 +308,7 @@ def test_episode_i_starts_alike_whatever_the_policy(env_id):
 
 
 def test_repeated_games_counts_the_distinct_games_of_each_run_and_mode():
-    from paper_lib.report import repeated_games, repeated_games_note
+    from paper_lib.reporting.paper_tables import repeated_games, repeated_games_note
 
     def group(method, inference, deterministic, rewards, members=None):
         n = len(rewards)

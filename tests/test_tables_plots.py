@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from matplotlib.figure import Figure
 
-from paper_lib import plots, tables
-from paper_lib.io import atomic_path, save_npz_atomic, write_json_atomic, write_text_atomic
+from paper_lib.common.io import atomic_path, save_npz_atomic, write_json_atomic, write_text_atomic
+from paper_lib.reporting import plots, tables
 
 
 # ---------------------------------------------------------------- io
@@ -222,7 +222,7 @@ def test_save_figure_writes_identical_png_and_pdf(tmp_path):
 
 def _figures_with_random_draws() -> dict[str, Figure]:
     """Every figure that draws at random: strip-plot jitter and seaborn's bootstrap intervals (several runs a cell)."""
-    from paper_lib.ensembles_report import own_vs_shared_figure
+    from paper_lib.experiments.ensembles_report import own_vs_shared_figure
     from paper_lib.guard.report import false_alarm_figure, trace_figure
 
     seeds = range(3)
@@ -288,7 +288,7 @@ def test_show_figure_displays_the_saved_png(tmp_path, monkeypatch):
 def test_seeds_per_cell_and_coverage_captions():
     from types import SimpleNamespace
 
-    from paper_lib import report
+    from paper_lib.reporting import paper_tables as report
 
     df = pd.DataFrame({"env": ["A", "A", "A", "B"], "method": ["m", "m", "n", "m"], "seed": [0, 1, 0, 0]})
     assert report.seeds_per_cell(df[df.env == "B"], ["env", "method"]) == "1 seed per cell"
@@ -301,7 +301,7 @@ def test_seeds_per_cell_and_coverage_captions():
 
 
 def test_reward_table_marks_cells_with_fewer_seeds():
-    from paper_lib.report import reward_table
+    from paper_lib.reporting.paper_tables import reward_table
 
     summary = pd.DataFrame({"env": ["A", "A"], "method": ["baseline", "masksembles"], "inference": ["single", "combined"],
                             "deterministic": [True, True], "mean": [10.0, 8.0], "std": [1.0, 2.0], "n_seeds": [3, 1]})
@@ -311,8 +311,8 @@ def test_reward_table_marks_cells_with_fewer_seeds():
 
 
 def test_roc_on_grid_is_the_reachable_tpr():
-    from paper_lib.metrics import roc_points
-    from paper_lib.run_results import roc_on_grid
+    from paper_lib.pipeline.run_results import roc_on_grid
+    from paper_lib.scoring.metrics import roc_points
 
     rng = np.random.default_rng(0)
     id_s, ood_s = rng.normal(0, 1, 300), rng.normal(1, 1, 200)
@@ -326,7 +326,7 @@ def test_roc_on_grid_is_the_reachable_tpr():
 
 
 def test_protocol_note_describes_the_states_as_collected():
-    from paper_lib.report import protocol_note
+    from paper_lib.reporting.paper_tables import protocol_note
 
     rows = [{"ood_set": o, "env": e, "method": "m", "seed": 0, "protocol": p, "actions": "sampled actions, vote inference",
              "n_ood": n, "n_ood_clusters": c, "n_id": 1000, "n_id_clusters": 10}

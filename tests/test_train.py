@@ -18,9 +18,9 @@ from stable_baselines3 import PPO
 from torch import nn
 
 from paper_lib import make_agent, member_outputs
-from paper_lib.io import atomic_dir, recover_dir
+from paper_lib.agents.training import apply_hp_edits, resume_dir_for, train_run
+from paper_lib.common.io import atomic_dir, recover_dir
 from paper_lib.methods.layers import MemberLinear
-from paper_lib.train import apply_hp_edits, resume_dir_for, train_run
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = {"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}}
@@ -64,7 +64,7 @@ def test_ortho_init_stays_sbs_default_where_the_table_says_so():
 
 
 def test_unknown_policy_setting_is_one_clear_error():
-    from paper_lib.agents import paper_hyperparameters
+    from paper_lib.agents.factory import paper_hyperparameters
 
     hp = paper_hyperparameters("HalfCheetah-v5")
     hp["policy"]["activation_fn"] = "gelu"
@@ -90,8 +90,8 @@ def test_committed_checkpoint_holds_inference_weights_and_loads_with_plain_ppo(t
 
 def test_reward_normalization_scales_training_rewards_only(tmp_path):
     """`normalize_reward` (the zoo's `normalize: true`) trains on scaled rewards; evaluation sees the env's own."""
-    from paper_lib.agents import paper_hyperparameters
-    from paper_lib.checkpoints import load_checkpoint
+    from paper_lib.agents.checkpoints import load_checkpoint
+    from paper_lib.agents.factory import paper_hyperparameters
 
     hp = apply_hp_edits(paper_hyperparameters("Walker2d-v5"), ["normalize_reward=true"])
     model = make_agent("ppo", "baseline", "Walker2d-v5", 0, hyperparameters=hp, n_envs=2, **TINY)
@@ -113,7 +113,7 @@ def test_reward_normalization_scales_training_rewards_only(tmp_path):
 
 def test_atari_checkpoints_store_float16_weights_and_load_as_float32(tmp_path):
     """Image policies are committed in float16 (half the size); PPO.load gives a float32 policy of the rounded weights."""
-    from paper_lib.checkpoints import load_checkpoint
+    from paper_lib.agents.checkpoints import load_checkpoint
 
     game = "SeaquestNoFrameskip-v4"
     tiny = {"overrides": {"n_steps": 16, "batch_size": 32, "n_epochs": 1}, "n_envs": 4}
@@ -155,7 +155,7 @@ def test_atomic_dir_keeps_the_old_folder_when_writing_fails(tmp_path):
 def test_a_killed_run_resumes_from_its_last_resume_point(tmp_path):
     """kill -9 mid-training, run the same command again: it continues and finishes the budget."""
     out = tmp_path / "ckpt"
-    cmd = [sys.executable, "-m", "paper_lib.train", "CartPole-v1", "ensemble", "0", str(out),
+    cmd = [sys.executable, "-m", "paper_lib.agents.training", "CartPole-v1", "ensemble", "0", str(out),
            "--timesteps", "4096", "--resume-every", "256", "--device", "cpu"]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     state = resume_dir_for(out) / "state.pkl"

@@ -11,9 +11,9 @@ import torch as th
 
 from conftest import TINY
 from paper_lib import make_agent, member_outputs, paper_hyperparameters
-from paper_lib.checkpoints import Checkpoint
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.experiments.value_level import COLUMNS, value_level_reading, value_level_row, value_level_table
 from paper_lib.ood.datasets import StateDataset
-from paper_lib.value_level import COLUMNS, value_level_reading, value_level_row, value_level_table
 
 ENV = "HalfCheetah-v5"
 

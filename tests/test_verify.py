@@ -1,12 +1,12 @@
-"""File comparison behind `python -m paper_lib.verify` (the whole command runs in tests/test_pipeline.py)."""
+"""File comparison behind `python -m paper_lib.pipeline.verify` (the whole command runs in tests/test_pipeline.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from paper_lib.config import load_run_config
-from paper_lib.verify import compare_files, runs_to_verify
+from paper_lib.pipeline.config import load_run_config
+from paper_lib.pipeline.verify import compare_files, runs_to_verify
 
 
 def _pair(tmp_path, committed: str, fresh: str, suffix: str = ".csv"):
@@ -50,7 +50,7 @@ def test_a_run_without_committed_results_is_refused_with_the_runs_that_have_them
 
 
 def test_cpu_info_reads_the_first_processor(tmp_path):
-    from paper_lib.provenance import cpu_info
+    from paper_lib.common.provenance import cpu_info
 
     info = tmp_path / "cpuinfo"
     info.write_text("processor\t: 0\nmodel name\t: Some CPU\nflags\t\t: fpu avx2 avx512f\n\nprocessor\t: 1\n"
@@ -60,7 +60,7 @@ def test_cpu_info_reads_the_first_processor(tmp_path):
 
 
 def test_a_seed_that_is_not_a_number_is_one_clear_error(capsys):
-    from paper_lib.verify import main
+    from paper_lib.pipeline.verify import main
 
     with pytest.raises(SystemExit) as exit_:
         main(["--run", "HalfCheetah-v5", "masksembles", "zero"])

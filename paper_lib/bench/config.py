@@ -6,8 +6,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from paper_lib.agents import paper_hyperparameters
-from paper_lib.envs import is_atari
+from paper_lib.agents.envs import is_atari
+from paper_lib.agents.factory import paper_hyperparameters
 from paper_lib.methods.networks import METHODS
 
 DEFAULT_ENVS = ("HalfCheetah-v5", "SeaquestNoFrameskip-v4")

@@ -38,7 +38,7 @@ import torch as th
 
 from paper_lib.bench.config import BenchConfig
 from paper_lib.bench.models import build_model, has_measures, make_bench_env
-from paper_lib.uncertainty import uncertainty
+from paper_lib.measures.estimates import uncertainty
 
 PHASES = ("train", "infer")
 # Not `-m paper_lib.bench.memory`: the package imports this module first, and runpy warns.

@@ -14,9 +14,9 @@ from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecEnv
 
-from paper_lib.agents import paper_hyperparameters
+from paper_lib.agents.envs import is_atari, make_env
+from paper_lib.agents.factory import paper_hyperparameters
 from paper_lib.bench.config import BenchConfig
-from paper_lib.envs import is_atari, make_env
 from paper_lib.methods.groups import MemberGroupVecEnv, check_member_layout
 from paper_lib.methods.policy import MemberActorCriticPolicy
 

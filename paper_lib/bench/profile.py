@@ -21,8 +21,8 @@ from torch.profiler import ProfilerActivity, profile
 
 from paper_lib.bench.config import BenchConfig
 from paper_lib.bench.models import build_model, has_measures
+from paper_lib.measures.estimates import act_with_uncertainty, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
-from paper_lib.uncertainty import act_with_uncertainty, uncertainty
 
 #: Small but real: 512 samples, the paper's batch of 64, two epochs = 16 gradient steps.
 SMALL_UPDATE = {"n_steps": 64, "n_epochs": 2}

@@ -13,7 +13,7 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
-from paper_lib.io import write_text_atomic
+from paper_lib.common.io import write_text_atomic
 
 BASELINE = "baseline"
 ENV_ONLY = "env_only"  # the env-stepping ceiling's "method"

@@ -19,8 +19,8 @@ from paper_lib.bench.config import BenchConfig
 from paper_lib.bench.models import build_model, has_measures, make_bench_env
 from paper_lib.bench.report import ENV_ONLY, RATE_UNIT, Row, with_ratios, write_outputs
 from paper_lib.bench.timing import env_ceiling, interleaved_medians, train_throughput
+from paper_lib.measures.estimates import act_with_uncertainty, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
-from paper_lib.uncertainty import act_with_uncertainty, uncertainty
 
 
 def _log(message: str) -> None:

@@ -18,23 +18,24 @@ from pathlib import Path
 
 import pandas as pd
 
-from paper_lib.checkpoints import Checkpoint
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.common.io import atomic_path
+from paper_lib.common.provenance import package_versions
 from paper_lib.guard.experiment import GuardRun, run_experiment
 from paper_lib.guard.settings import GuardSettings
-from paper_lib.io import atomic_path
 from paper_lib.ood.collect import ActionMode
-from paper_lib.provenance import package_versions
 
 TABLES = ("episodes", "returns", "traces")
 FOLDER = "experiment"
 #: Every paper_lib module a guard experiment runs (`tests/test_guard.py` checks a real run imports no other).
 SOURCE_MODULES = tuple(f"paper_lib{suffix}" for suffix in (
-    "", ".agents", ".checkpoints", ".config", ".detectors", ".envs", ".io", ".measures", ".provenance", ".trpo",
-    ".uncertainty", ".guard", ".guard.cache", ".guard.conformal", ".guard.core", ".guard.experiment", ".guard.scores",
-    ".guard.sequential", ".guard.settings", ".guard.shift", ".guard.wrappers", ".methods", ".methods.buffer",
-    ".methods.groups", ".methods.independent", ".methods.inference", ".methods.layers", ".methods.networks",
-    ".methods.per_state", ".methods.policy", ".ood", ".ood.atari", ".ood.collect", ".ood.datasets",
-    ".ood.frame_store", ".ood.mujoco", ".ood.pixels"))
+    "", ".common", ".common.io", ".common.provenance", ".methods", ".methods.buffer", ".methods.groups",
+    ".methods.independent", ".methods.inference", ".methods.layers", ".methods.networks", ".methods.per_state",
+    ".methods.policy", ".methods.trpo", ".measures", ".measures.definitions", ".measures.detectors",
+    ".measures.estimates", ".agents", ".agents.checkpoints", ".agents.envs", ".agents.factory", ".ood",
+    ".ood.atari", ".ood.collect", ".ood.datasets", ".ood.frame_store", ".ood.mujoco", ".ood.pixels", ".pipeline",
+    ".pipeline.config", ".guard", ".guard.cache", ".guard.conformal", ".guard.core", ".guard.experiment",
+    ".guard.scores", ".guard.sequential", ".guard.settings", ".guard.shift", ".guard.wrappers"))
 
 
 def fingerprint(checkpoint: Checkpoint, settings: GuardSettings, action_mode: ActionMode, seed: int) -> str:

@@ -46,10 +46,10 @@ from paper_lib.guard.conformal import (
     episode_maximum,
     false_alarm_bound,
 )
+from paper_lib.common.io import atomic_dir, save_npz_atomic, write_json_atomic
+from paper_lib.common.provenance import package_versions
 from paper_lib.guard.scores import Score, as_states, load_score, make_score, policy_of, state_hashes
 from paper_lib.guard.sequential import Cusum, Statistic, WindowMean, statistic_from_dict
-from paper_lib.io import atomic_dir, save_npz_atomic, write_json_atomic
-from paper_lib.provenance import package_versions
 
 FORMAT = "paper_lib.Guard/1"
 GUARDS_DIR = "guards"
@@ -199,7 +199,7 @@ class Guard:
         if shared:
             raise ValueError(f"{shared} of the {len(states)} calibration states were used to fit the score "
                              f"{self.score.name!r}; its scores there are too low and the threshold would be wrong. "
-                             "Calibrate on ID states held out from the fit (e.g. paper_lib.detectors.split_fit_eval).")
+                             "Calibrate on ID states held out from the fit (e.g. paper_lib.measures.detectors.split_fit_eval).")
 
     def _calibrate(self, calibration_scores: np.ndarray) -> None:
         scores = np.asarray(calibration_scores, dtype=float).reshape(-1)

@@ -32,7 +32,7 @@ import pandas as pd
 import torch as th
 from stable_baselines3.common.vec_env import VecNormalize
 
-from paper_lib.checkpoints import Checkpoint
+from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.guard.core import Guard, SequentialGuard
 from paper_lib.guard.scores import CombinedScore, Score, available_scores, make_score, score_many
 from paper_lib.guard.sequential import Cusum, WindowMean

@@ -8,9 +8,9 @@ import seaborn as sns
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from paper_lib.frames import require_columns
+from paper_lib.common.frames import require_columns
 from paper_lib.guard.conformal import false_alarm_bound
-from paper_lib.plots import FIGURE_SEED
+from paper_lib.reporting.plots import FIGURE_SEED
 
 KEYS = ["env", "method", "score", "guard"]
 GUARD_ORDER = ["state", "window", "cusum"]

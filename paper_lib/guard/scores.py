@@ -25,10 +25,10 @@ from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 
-from paper_lib.detectors import KNNDetector, MahalanobisDetector
-from paper_lib.measures import DISCRETE_ONLY, MEMBER_MEASURES
+from paper_lib.measures.definitions import DISCRETE_ONLY, MEMBER_MEASURES
+from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector
+from paper_lib.measures.estimates import policy_features, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
-from paper_lib.uncertainty import policy_features, uncertainty
 
 DETECTORS = ("mahalanobis", "knn")
 DETECTOR_INPUTS = ("obs", "features")
@@ -105,7 +105,7 @@ class Score:
 
 
 class MemberScore(Score):
-    """One of the paper's member measures (``paper_lib.uncertainty``): value_std, policy_std, policy_js,
+    """One of the paper's member measures (``paper_lib.measures.estimates``): value_std, policy_std, policy_js,
     and for discrete actions max_prob and entropy (the last two also exist for a baseline)."""
 
     kind = "member"
@@ -133,7 +133,7 @@ class MemberScore(Score):
 
 
 class DetectorScore(Score):
-    """A member-free detector (``paper_lib.detectors``): Mahalanobis or kNN distance to ID states,
+    """A member-free detector (``paper_lib.measures.detectors``): Mahalanobis or kNN distance to ID states,
     on the observations or on the policy's last hidden features, fitted on ``fit_states``."""
 
     kind = "detector"

@@ -23,9 +23,9 @@ from typing import Any
 
 import yaml
 
-from paper_lib.config import RunConfig, validate_params
 from paper_lib.guard.conformal import check_alpha, check_confidence, check_window, min_calibration_size
 from paper_lib.guard.scores import SCORE_NAMES
+from paper_lib.pipeline.config import RunConfig, validate_params
 
 SECTION = "guard"
 SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
@@ -155,7 +155,7 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
 
 
 def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, GuardSettings]:
-    """The active profile (checked by paper_lib.config) and its guard settings."""
+    """The active profile (checked by paper_lib.pipeline.config) and its guard settings."""
     path = Path(params_file)
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
@@ -165,8 +165,7 @@ def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, G
         raise ValueError(f"{path}: YAML syntax error ({err}); fix it or restore it with `git checkout params.yaml`") \
             from None
     if not isinstance(params, dict) or SECTION not in params:
-        raise ValueError(f"{path} has no `{SECTION}` section; add it (see paper_lib/guard/settings.py and the README's "
-                         "'The OOD guard')")
+        raise ValueError(f"{path} has no `{SECTION}` section; add it (see paper_lib/guard/settings.py and docs/guard.md)")
     section = params.pop(SECTION)
     cfg = validate_params(params, path)
     return cfg, parse_settings(section, cfg.profile, f"{path}: {SECTION}")

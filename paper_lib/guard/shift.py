@@ -23,7 +23,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from paper_lib.envs import make_single_env
+from paper_lib.agents.envs import make_single_env
 from paper_lib.ood.mujoco import PerturbationConfig, is_unstable, make_perturbed_env
 
 _INSTABILITY = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)

@@ -149,7 +149,7 @@ class IndependentMembers(nn.Module):
 
 def _not_trainable() -> ValueError:
     return ValueError("an IndependentEnsemblePolicy is assembled from separately trained baseline agents and is "
-                      "not trained further; train the members (paper_lib.train ... baseline SEED) and assemble again")
+                      "not trained further; train the members (paper_lib.agents.training ... baseline SEED) and assemble again")
 
 
 class _MemberStd:

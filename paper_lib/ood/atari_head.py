@@ -13,7 +13,7 @@ pixel-wise max of the last two frames of each skip (MaxAndSkipEnv), grey and 84x
 INTER_AREA (WarpFrame), 4 of them stacked oldest first (VecFrameStack).
 
 ``atari_head_ood_dataset`` makes them a run's OOD set; the pipeline uses it in place of the
-edited game states when params.yaml sets ``atari_head.root`` (``paper_lib.pipeline.collect_states``).
+edited game states when params.yaml sets ``atari_head.root`` (``paper_lib.pipeline.stages.collect_states``).
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecNormalize
 
-from paper_lib.envs import N_STACK, is_atari, make_single_env, register_atari
+from paper_lib.agents.envs import N_STACK, is_atari, make_single_env, register_atari
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
 from paper_lib.ood.atari import (
     ATARI_GAMES,
@@ -64,8 +64,8 @@ from paper_lib.ood.mujoco import (
     make_perturbed_env,
     sample_stable_config,
 )
+from paper_lib.measures.estimates import uncertainty
 from paper_lib.ood.pixels import PIXEL_PERTURBATIONS, noise_ood, perturb_pixels
-from paper_lib.uncertainty import uncertainty
 
 #: The main text's OOD protocol (the default): ``collect_mujoco_ood_states(..., **MAIN_TEXT_PROTOCOL)``.
 MAIN_TEXT_PROTOCOL: dict[str, int] = {"configs": 50, "steps_per_config": 100}

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from paper_lib.io import remove_stale_temps, save_npz_atomic
+from paper_lib.common.io import remove_stale_temps, save_npz_atomic
 from paper_lib.ood import frame_store
 
 FORMAT = "paper_lib.StateDataset/1"  # states stored as they are

@@ -24,7 +24,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from paper_lib.envs import make_single_env, model_spec, write_model_xml
+from paper_lib.agents.envs import make_single_env, model_spec, write_model_xml
 
 SUPPORTED_ENVS: tuple[str, ...] = ("HalfCheetah-v5", "Ant-v5", "Walker2d-v5", "Swimmer-v5")
 KINDS: tuple[str, ...] = ("gravity", "wind", "friction", "geometry")

@@ -3,7 +3,7 @@
 The companion of ``paper_lib.ood.coverage``, which checks the benchmark's ID states. Those cover only
 the first steps of episodes (the same part as the OOD states), while a good agent gets to later
 levels and rooms later in a game. The evaluation games are whole games, and each of their rows
-records the highest value of the default source's indicator (``paper_lib.evaluation``), so a
+records the highest value of the default source's indicator (``paper_lib.scoring.rewards``), so a
 source is trusted only if no game reached its values either.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from paper_lib.envs import is_atari
+from paper_lib.agents.envs import is_atari
 from paper_lib.ood.atari import DEFAULT_SOURCE, game_of, source_values
 
 
@@ -25,7 +25,7 @@ PLAY_NOT_RECORDED = "not recorded: evaluate the run again"
 def play_coverage(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per Atari run: did the agent reach the default OOD source's values anywhere in its evaluation games?
 
-    ``episodes`` are evaluation rows (`paper_lib.evaluation.evaluate_rewards`, with env, method and
+    ``episodes`` are evaluation rows (`paper_lib.scoring.rewards.evaluate_rewards`, with env, method and
     seed) whose ``source_indicator_max`` is the highest indicator value of each whole game. The ID
     states of the benchmark cover only the first steps of episodes; a whole game is where a good
     agent gets to later levels and rooms, so this is the stronger check. Non-Atari rows are left out.

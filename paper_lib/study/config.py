@@ -19,15 +19,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from paper_lib.agents import ALGO_KEYS, ALGORITHMS
-from paper_lib.config import PARAMS_FILE, read_params
+from paper_lib.agents.factory import ALGO_KEYS, ALGORITHMS
+from paper_lib.measures.definitions import MEMBER_MEASURES
 from paper_lib.methods.networks import METHODS
 from paper_lib.methods.policy import INFERENCE_MODES
+from paper_lib.pipeline.config import PARAMS_FILE, read_params
 from paper_lib.study.space import ParamSpec, parse_space
 
 SAMPLERS = ("tpe", "nsga2", "random")
 #: Scores a trial can optimize: the member measures, and the member-free detectors (baseline studies).
-MEMBER_MEASURES = ("value_std", "policy_std", "policy_js")
 DETECTORS = ("mahalanobis_obs", "knn_obs", "mahalanobis_features", "knn_features")
 PARTS = ("objective", "space", "ablations", "budgets", "scaling")
 OPTIONAL_PARTS = ("budget_of_profile",)

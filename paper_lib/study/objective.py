@@ -28,15 +28,15 @@ import numpy as np
 import optuna
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from paper_lib.checkpoints import Checkpoint, load_checkpoint
-from paper_lib.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
-from paper_lib.metrics import detection_metrics
+from paper_lib.agents.checkpoints import Checkpoint, load_checkpoint
+from paper_lib.agents.training import train_run
+from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
+from paper_lib.measures.estimates import policy_features
 from paper_lib.ood.collect import ActionMode, collect_id_states, noise_ood_states, score_dataset
 from paper_lib.ood.datasets import concat
+from paper_lib.scoring.metrics import detection_metrics
 from paper_lib.study.config import StudyConfig, StudySpec
 from paper_lib.study.space import agent_kwargs, suggest_params
-from paper_lib.train import train_run
-from paper_lib.uncertainty import policy_features
 
 #: Never write resume points for a trial: a killed trial is retried from its start.
 NO_RESUME_POINTS = 10**15

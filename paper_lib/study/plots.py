@@ -1,8 +1,8 @@
 """The study's figures: reward-vs-AUROC scatters with each method's Pareto front (fig:scatter_mujoco,
 fig:scatter_other_algs), the ablations of appendix C.1 and the scaling runs of appendix E.
 
-Like `paper_lib.plots`, figures are built on an Agg canvas without pyplot; save them with
-`paper_lib.plots.save_figure`. Every method keeps one colour in every figure.
+Like `paper_lib.reporting.plots`, figures are built on an Agg canvas without pyplot; save them with
+`paper_lib.reporting.plots.save_figure`. Every method keeps one colour in every figure.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import seaborn as sns
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from paper_lib.frames import require_columns
+from paper_lib.common.frames import require_columns
 from paper_lib.methods.networks import METHODS
 
 PALETTE = dict(zip(METHODS, sns.color_palette("tab10", len(METHODS))))

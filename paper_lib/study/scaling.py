@@ -2,7 +2,7 @@
 
 Runs come from params.yaml's `study.scaling.<profile>`: widths per env, methods, seeds, a training
 budget (null: each env's full budget) and `fixed` algorithm settings. Each run is an ordinary
-training run (`paper_lib.train.train_run`, so it resumes after a kill) with the env's paper
+training run (`paper_lib.agents.training.train_run`, so it resumes after a kill) with the env's paper
 hyperparameters and every hidden layer set to the width, Masksembles included.
 
     python -m paper_lib.study.scaling            # train every run of the active profile that is not done yet
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from paper_lib.config import PARAMS_FILE, read_params
 from paper_lib.methods.networks import METHODS
+from paper_lib.pipeline.config import PARAMS_FILE, read_params
 from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
 
@@ -110,7 +110,7 @@ def is_done(cfg: ScalingConfig, run: ScalingRun) -> bool:
 
 def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]:
     """Train (or resume) every run that has no finished checkpoint yet."""
-    from paper_lib.train import train_run
+    from paper_lib.agents.training import train_run
 
     done = []
     for run in cfg.runs:
@@ -157,7 +157,7 @@ def training_curves(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) ->
 
 def final_rewards(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) -> pd.DataFrame:
     """Deterministic evaluation reward of `runs` (default: every run), one row per episode."""
-    from paper_lib.checkpoints import load_checkpoint
+    from paper_lib.agents.checkpoints import load_checkpoint
     from paper_lib.study.objective import evaluation_episodes
 
     rows = []

@@ -1,0 +1,338 @@
+"""Train one (env, method, seed) run, resumably, and write its checkpoint folder all or nothing.
+
+Two kinds of artifact:
+- the **checkpoint folder** (committed): model.zip with the inference weights only (no optimizer
+  moments; loads with plain `PPO.load`), vecnormalize.pkl when the run normalized observations,
+  training_curve.csv and config.json (resolved config, package versions, machine, wall time).
+  It replaces an old folder in one atomic swap (`paper_lib.common.io.atomic_dir`).
+- **resume points** (not committed): every `resume_every` steps, the full training state
+  (model with optimizer, normalizer statistics, curve so far, step count, RNG states), so a run
+  killed at 90% continues from its last resume point instead of from zero.
+
+    python -m paper_lib.agents.training HalfCheetah-v5 masksembles 0 results/paper/checkpoints/HalfCheetah-v5/masksembles/seed0
+    python -m paper_lib.agents.training ... --resume      # continue from the last resume point (the default)
+
+Resume points live beside the checkpoint as `.<name>.resume/`, or under $PAPER_LIB_RESUME_ROOT
+(mirroring the checkpoint's path) when that is set, e.g. on a disk that outlives the work tree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import random
+import shlex
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+
+from paper_lib.agents.envs import is_atari
+from paper_lib.agents.factory import HP_OPTIONAL, config_value, make_agent
+from paper_lib.common.io import atomic_dir, write_json_atomic
+from paper_lib.common.provenance import machine, package_versions
+
+RESUME_ROOT_ENV = "PAPER_LIB_RESUME_ROOT"
+#: Default spacing of resume points, in environment steps.
+RESUME_EVERY = 50_000
+
+
+class TrainingCurve(BaseCallback):
+    """Per rollout: mean training-episode return (sampled actions, Monitor's last 100 episodes).
+
+    Also writes a resume point at the start of a rollout (after the previous update) once
+    `resume_every` steps have passed since the last one.
+    """
+
+    def __init__(self, rows: list[dict[str, float]] | None = None, elapsed: float = 0.0,
+                 resume_dir: Path | None = None, resume_every: int = RESUME_EVERY,
+                 segments: list[dict[str, Any]] | None = None, where: dict[str, Any] | None = None) -> None:
+        super().__init__()
+        self.rows: list[dict[str, float]] = list(rows or [])
+        self.elapsed_before = elapsed
+        self.start = time.perf_counter()
+        self.resume_dir, self.resume_every = resume_dir, resume_every
+        self.last_resume_step: int | None = None
+        self.segments_before = list(segments or [])
+        self.where = dict(where or {})
+        self.first_step: int | None = None
+
+    @property
+    def wall_seconds(self) -> float:
+        return self.elapsed_before + time.perf_counter() - self.start
+
+    def segments(self, num_timesteps: int) -> list[dict[str, Any]]:
+        """Where each stretch of the run trained: a run resumed on another machine has two or more."""
+        start = num_timesteps if self.first_step is None else self.first_step
+        if num_timesteps <= start:
+            return list(self.segments_before)
+        return self.segments_before + [{"from_step": int(start), "to_step": int(num_timesteps),
+                                        "wall_seconds": time.perf_counter() - self.start, **self.where}]
+
+    def _on_training_start(self) -> None:
+        self.first_step = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        if self.last_resume_step is None:
+            self.last_resume_step = self.num_timesteps
+        if self.resume_dir is not None and self.num_timesteps - self.last_resume_step >= self.resume_every:
+            save_resume_point(self.model, self.resume_dir, self.rows, self.wall_seconds,
+                              self.segments(self.num_timesteps))
+            self.last_resume_step = self.num_timesteps
+
+    def _on_rollout_end(self) -> None:
+        episodes = self.model.ep_info_buffer
+        self.rows.append({
+            "timesteps": self.num_timesteps,
+            "reward": float(np.mean([e["r"] for e in episodes])) if episodes else float("nan"),
+            "episode_length": float(np.mean([e["l"] for e in episodes])) if episodes else float("nan"),
+            # mean reward per env step of this rollout: defined even before any episode has ended
+            "step_reward": float(np.mean(self.model.rollout_buffer.rewards)),
+            "wall_seconds": self.wall_seconds,
+        })
+
+
+def resume_dir_for(out_dir: str | Path) -> Path:
+    """Where the resume points of the run whose checkpoint goes to `out_dir` live."""
+    out_dir = Path(out_dir)
+    root = os.environ.get(RESUME_ROOT_ENV)
+    if root:
+        return Path(root) / Path(os.path.abspath(out_dir)).relative_to("/")
+    return out_dir.parent / f".{out_dir.name}.resume"
+
+
+def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, float]], wall_seconds: float,
+                      segments: list[dict[str, Any]] | None = None) -> None:
+    """The full training state, swapped in atomically: a kill leaves the previous resume point."""
+    with atomic_dir(folder) as tmp:
+        model.save(tmp / "model.zip")  # includes the optimizer state
+        normalizer = model.get_vec_normalize_env()
+        if normalizer is not None:
+            normalizer.save(str(tmp / "vecnormalize.pkl"))
+        state = {"num_timesteps": model.num_timesteps, "n_updates": getattr(model, "_n_updates", 0),
+                 "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds,
+                 "segments": segments or [],
+                 "rng": {"torch": th.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
+                 "config": getattr(model, "paper_lib_config", None)}
+        with open(tmp / "state.pkl", "wb") as f:
+            pickle.dump(state, f)
+
+
+def load_resume_point(model: BaseAlgorithm, folder: Path) -> dict[str, Any]:
+    """Restore weights, optimizer, normalizer, counters and RNG states into a freshly built `model`.
+
+    The envs themselves restart their episodes (SB3 does not save env state), which is the one
+    difference from an uninterrupted run.
+    """
+    try:
+        with open(folder / "state.pkl", "rb") as f:
+            state = pickle.load(f)
+        saved_config = state.get("config")
+        if saved_config is not None:
+            for key in ("algo", "method", "env_id", "seed", "n_members", "dropout_p", "masksembles_scale", "assignment",
+                        "hidden_sizes", "policy", "normalize_obs", "normalize_reward", "algo_kwargs", "n_envs"):
+                saved, now = (config_value(c, key) for c in (saved_config, model.paper_lib_config))
+                if saved != now:
+                    raise ValueError(f"resume point {folder} was trained with {key}={saved!r}, "
+                                     f"this run has {now!r}; delete {folder} to start "
+                                     "afresh or run with the settings it was made with")
+        model.set_parameters(str(folder / "model.zip"), exact_match=True, device=model.device)
+    except (OSError, pickle.UnpicklingError, EOFError, KeyError) as err:
+        raise ValueError(f"resume point {folder} is unreadable ({type(err).__name__}: {err}); "
+                         f"delete it to start the run afresh") from err
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:
+        with open(folder / "vecnormalize.pkl", "rb") as f:
+            saved = pickle.load(f)
+        normalizer.obs_rms, normalizer.ret_rms = saved.obs_rms, saved.ret_rms
+    model.num_timesteps = state["num_timesteps"]
+    model._n_updates = state["n_updates"]
+    model.ep_info_buffer = deque(state["ep_info_buffer"], maxlen=model._stats_window_size)
+    model.ep_success_buffer = deque(maxlen=model._stats_window_size)
+    th.set_rng_state(state["rng"]["torch"])
+    np.random.set_state(state["rng"]["numpy"])
+    random.setstate(state["rng"]["python"])
+    return state
+
+
+def strip_training_state(model: BaseAlgorithm) -> None:
+    """Drop the optimizer's moments before the committed save: inference needs only the weights.
+
+    A fresh optimizer of the same class keeps `PPO.load` working; Adam's moments are about two
+    thirds of a full checkpoint's size.
+    """
+    policy = model.policy
+    policy.optimizer = policy.optimizer_class(policy.parameters(), lr=policy.optimizer.param_groups[0]["lr"],
+                                              **policy.optimizer_kwargs)
+
+
+def store_inference_weights(model: BaseAlgorithm) -> str:
+    """Cast an image policy to float16 for the committed save; MLPs stay float32. Returns the dtype's name.
+
+    A Nature CNN has about 1.7M parameters (four in an ensemble), so Atari checkpoints are the bulk of the
+    results tree; float16 halves them. `PPO.load` builds a float32 policy and `load_state_dict` copies the
+    float16 values in, so the committed agent is the trained one with its weights rounded to float16
+    (relative error below 5e-4), and every evaluation, dataset and score is computed with that agent.
+    The resume point, saved before this, keeps the float32 training state.
+    """
+    if not is_atari(model.paper_lib_config["env_id"]):
+        return "float32"
+    model.policy.half()
+    return "float16"
+
+
+def gpu_name(device: th.device) -> str | None:
+    """The accelerator a run trained on (its numbers differ from a CPU run's of the same seed), or None."""
+    return th.cuda.get_device_name(device) if device.type == "cuda" else None
+
+
+def check_budget(total_timesteps: Any) -> int:
+    """A training budget is a positive whole number of steps."""
+    if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)) or total_timesteps <= 0:
+        raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}; "
+                         "give the number of environment steps, e.g. 1000000")
+    return int(total_timesteps)
+
+
+def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: str = "ppo",
+              total_timesteps: int | None = None, agent_kwargs: dict[str, Any] | None = None,
+              torch_threads: int = 1, progress_bar: bool = False, resume: bool = True,
+              resume_every: int = RESUME_EVERY, tensorboard: bool = False) -> Path:
+    """Train (continuing from the last resume point if `resume`) and write the checkpoint folder."""
+    th.set_num_threads(torch_threads)
+    out_dir = Path(out_dir)
+    resume_dir = resume_dir_for(out_dir)
+    agent_kwargs = dict(agent_kwargs or {})
+    if tensorboard:
+        agent_kwargs.setdefault("tensorboard_log", str(resume_dir.parent / f".{out_dir.name}.tensorboard"))
+    model = make_agent(algo, method, env_id, seed, **agent_kwargs)
+    steps = check_budget(total_timesteps if total_timesteps is not None else model.paper_lib_config["total_timesteps"])
+    rows, elapsed, resumed_from, segments = [], 0.0, 0, []
+    if resume and (resume_dir / "state.pkl").is_file():
+        state = load_resume_point(model, resume_dir)
+        rows, elapsed, resumed_from = state["rows"], state["wall_seconds"], state["num_timesteps"]
+        segments = state.get("segments") or [{"from_step": 0, "to_step": resumed_from, "device": "not recorded"}]
+        print(f"resuming {env_id} {method} seed {seed} from step {resumed_from} ({resume_dir})", file=sys.stderr)
+    where = {"device": str(model.device), "gpu": gpu_name(model.device),
+             "env_processes": bool(agent_kwargs.get("env_processes", False)), "torch_threads": torch_threads,
+             "platform": machine()["platform"]}
+    curve = TrainingCurve(rows, elapsed, resume_dir, resume_every, segments, where)
+    if resumed_from < steps:
+        model.learn(steps - resumed_from, callback=curve, progress_bar=progress_bar, reset_num_timesteps=resumed_from == 0)
+    config = {**model.paper_lib_config, "total_timesteps": steps, "trained_timesteps": int(model.num_timesteps),
+              "wall_seconds": curve.wall_seconds, "resumed_from": resumed_from or None, "torch_threads": torch_threads,
+              "device": where["device"], "gpu": where["gpu"], "env_processes": where["env_processes"],
+              "segments": curve.segments(model.num_timesteps), "versions": package_versions(), "machine": machine()}
+    if model.num_timesteps >= steps and resume:  # a full resume point first: the export below drops the optimizer
+        save_resume_point(model, resume_dir, curve.rows, curve.wall_seconds, config["segments"])
+    strip_training_state(model)
+    config["weights_dtype"] = store_inference_weights(model)
+    with atomic_dir(out_dir) as tmp:
+        model.save(tmp / "model.zip")
+        normalizer = model.get_vec_normalize_env()
+        if normalizer is not None:
+            normalizer.save(str(tmp / "vecnormalize.pkl"))
+        pd.DataFrame(curve.rows).to_csv(tmp / "training_curve.csv", index=False)
+        write_json_atomic(tmp / "config.json", config)
+    return out_dir
+
+
+def hp_flags(overrides: dict[str, Any]) -> list[str]:
+    """Algorithm overrides as this module's `--hp algo.KEY=VALUE` edits (values in YAML/JSON form)."""
+    return [f"--hp {shlex.quote(f'algo.{key}={json.dumps(value)}')}" for key, value in overrides.items()]
+
+
+def train_command(args: list[str], resume_root: str | None = None, python: str = ".venv/bin/python") -> str:
+    """The shell line that trains one run (`python -m paper_lib.agents.training ARGS`), resumable under `resume_root`."""
+    prefix = [f"env PAPER_LIB_RESUME_ROOT={shlex.quote(resume_root)}"] if resume_root else []
+    return " ".join(prefix + [python, "-m", "paper_lib.agents.training"] + args)
+
+
+def apply_hp_edits(hp: dict[str, Any], edits: list[str]) -> dict[str, Any]:
+    """`KEY=VALUE` edits of a hyperparameter entry; dotted keys reach nested settings, values are YAML.
+
+    For recipe probes, e.g. `normalize_obs=true`, `policy.activation_fn=tanh`, `members.dropout_p=0.2`.
+    """
+    import copy
+
+    import yaml
+
+    hp = copy.deepcopy(hp)
+    for edit in edits:
+        key, sep, text = edit.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--hp {edit!r}: write KEY=VALUE, e.g. --hp members.dropout_p=0.2")
+        *parents, leaf = key.split(".")
+        node = hp
+        for name in parents:
+            if not isinstance(node.get(name), dict):
+                raise ValueError(f"--hp {edit!r}: {name!r} is not a section of the hyperparameters; "
+                                 f"sections: {sorted(k for k, v in node.items() if isinstance(v, dict))}")
+            node = node[name]
+        if leaf not in node and not (not parents and leaf in HP_OPTIONAL):  # e.g. normalize_reward=true
+            raise ValueError(f"--hp {edit!r}: unknown setting {leaf!r}; known here: {sorted(node)}")
+        node[leaf] = yaml.safe_load(text)
+    return hp
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("env_id")
+    parser.add_argument("method")
+    parser.add_argument("seed", type=int)
+    parser.add_argument("out_dir")
+    parser.add_argument("--algo", default="ppo")
+    parser.add_argument("--timesteps", type=int, default=None, help="training steps (default: the env's budget)")
+    parser.add_argument("--assignment", default="shared")
+    parser.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
+                        help="edit the env's hyperparameters, e.g. --hp members.dropout_p=0.2 (repeatable)")
+    parser.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                        help="continue from the last resume point if there is one (default: yes)")
+    parser.add_argument("--resume-every", type=int, default=RESUME_EVERY, help="steps between resume points")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the networks, e.g. cuda on a lent GPU machine (default: cpu)")
+    parser.add_argument("--env-processes", action="store_true",
+                        help="step the envs in subprocesses (same transitions; faster with many cores and a GPU)")
+    parser.add_argument("--tensorboard", action="store_true", help="write TensorBoard logs beside the resume point")
+    parser.add_argument("--progress-bar", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        if args.timesteps is not None:
+            check_budget(args.timesteps)
+        if args.resume_every <= 0:
+            raise ValueError(f"--resume-every must be a positive number of steps, got {args.resume_every}")
+        if args.threads <= 0:
+            raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
+        try:
+            th.device(args.device)
+        except RuntimeError:
+            raise ValueError(f"--device must be a torch device such as cpu or cuda, got {args.device!r}") from None
+        agent_kwargs: dict[str, Any] = {"assignment": args.assignment, "device": args.device,
+                                        "env_processes": args.env_processes}
+        if args.hp:
+            from paper_lib.agents.factory import paper_hyperparameters
+
+            agent_kwargs["hyperparameters"] = apply_hp_edits(paper_hyperparameters(args.env_id), args.hp)
+        train_run(args.env_id, args.method, args.seed, args.out_dir, algo=args.algo, total_timesteps=args.timesteps,
+                  agent_kwargs=agent_kwargs, torch_threads=args.threads,
+                  progress_bar=args.progress_bar, resume=args.resume, resume_every=args.resume_every,
+                  tensorboard=args.tensorboard)
+    except ValueError as err:
+        parser.exit(2, f"error: {err}\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,648 @@
+"""Ensembles examined: independently trained ensembles (paper appendix B.2) and the `own` assignment.
+
+Which runs exist, how they are trained, where they live, their ID/OOD states, reward episodes
+and OOD scores; the tables and figure are in `paper_lib.experiments.ensembles_report`, shown by
+notebooks/11_ensembles.ipynb.
+
+params.yaml's `ensembles` section holds the paper's rule and, per budget profile, the runs:
+
+    ensembles:
+      rule: {budget_fraction: 0.25, epochs_factor: 4, ensemble_size: 4}
+      profiles:
+        cpu:
+          independent: {envs: [Walker2d-v5, ...], member_seeds: [0, 1, 2, 3, 4], total_timesteps: null}
+          own_vs_shared: {envs: [HalfCheetah-v5, Swimmer-v5], methods: [masksembles, ensemble], seeds: [0, 1, 2]}
+
+- **Independent members**: baseline agents, each trained alone with `budget_fraction` of the
+  full budget (`total_timesteps`; null: the profile's `run.total_timesteps`, else the env's) and
+  `epochs_factor` times its `n_epochs` (the profile's override, else the env's): as many gradient
+  updates as a full run from a quarter of the interactions (appendix B.2). Every
+  `ensemble_size`-of-n combination of the members is assembled into one
+  `IndependentEnsemblePolicy`, with no retraining.
+- **own vs shared**: `assignment="own"` runs with the main matrix's recipe and budget; their
+  `shared` twins are the main matrix's runs. A pair is compared only if the two runs' training
+  settings agree in everything but the assignment.
+
+Both parts mirror the main results tree (`RunConfig` with the profile `<profile>/independent`
+or `<profile>/own`), so the main pipeline's per-run functions (collect, evaluate, score) and
+readers serve the `own` runs unchanged. Under results/<profile>/:
+
+    independent/checkpoints/<env>/baseline/seed<s>/           one member
+    independent/{datasets,evaluations}/<env>/members-0-1-2-3.{npz,csv}, independent/scores/<env>/members-0-1-2-3/
+    own/{checkpoints,datasets,evaluations,scores}/<env>/<method>/seed<s>...   as the main tree, assignment own
+    {checkpoints,datasets,evaluations,scores}/<env>/<method>/seed<s>...       the shared twins: the main tree
+
+    python -m paper_lib.experiments.ensembles queue [--resume-root /work/resume]   # training commands of the runs still missing
+    python -m paper_lib.experiments.ensembles train {independent,own} [--env E] [--method M] [--seed S]
+    python -m paper_lib.experiments.ensembles collect     # ID/OOD states of every combination and run that lacks them
+    python -m paper_lib.experiments.ensembles evaluate    # reward episodes and OOD scores of the same
+    python -m paper_lib.experiments.ensembles missing
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import json
+import pickle
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch as th
+import yaml
+from stable_baselines3.common.vec_env import VecNormalize
+
+from paper_lib.agents.checkpoints import Checkpoint, load_checkpoint
+from paper_lib.agents.envs import is_atari
+from paper_lib.agents.factory import config_value
+from paper_lib.agents.training import hp_flags, train_command
+from paper_lib.common.io import write_text_atomic
+from paper_lib.methods.independent import assemble_ensemble
+from paper_lib.methods.networks import MEMBER_METHODS
+from paper_lib.ood.datasets import StateDataset
+from paper_lib.pipeline.config import PARAMS_FILE, RunConfig, parse_params, validate_params
+from paper_lib.pipeline.stages import collect_run, collect_states
+
+SECTION = "ensembles"
+ASSIGNMENTS = ("shared", "own")
+#: Training settings that must agree between a `shared` run and its `own` twin (all but the assignment).
+TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dropout_p", "masksembles_scale",
+                 "hidden_sizes", "normalize_obs", "normalize_reward", "policy", "algo_kwargs", "linear_lr_decay",
+                 "total_timesteps")
+#: What a run needs before it enters the tables, in pipeline order.
+ARTIFACTS = ("checkpoint", "dataset", "evaluation", "scores")
+
+
+def _fail(path: Path, where: str, problem: str) -> ValueError:
+    return ValueError(f"{path}: {SECTION}.{where}: {problem}; see docs/ensembles.md")
+
+
+def _int_list(value: Any, path: Path, where: str, minimum: int = 0) -> list[int]:
+    if not isinstance(value, list) or not value or any(isinstance(v, bool) or not isinstance(v, int) or v < minimum
+                                                        for v in value):
+        raise _fail(path, where, f"must be a non-empty list of integers >= {minimum}, got {value!r}")
+    if len(set(value)) != len(value):
+        raise _fail(path, where, f"lists an entry twice: {value!r}")
+    return list(value)
+
+
+def _name_list(value: Any, known: list[str] | tuple[str, ...], path: Path, where: str) -> list[str]:
+    if not isinstance(value, list) or not value:
+        raise _fail(path, where, f"must be a non-empty list, got {value!r}")
+    unknown = [v for v in value if v not in known]
+    if unknown:
+        raise _fail(path, where, f"unknown {unknown}; known: {sorted(known)}")
+    if len(set(value)) != len(value):
+        raise _fail(path, where, f"lists an entry twice: {value!r}")
+    return list(value)
+
+
+def combinations(member_seeds: list[int], size: int) -> list[tuple[int, ...]]:
+    """Every `size`-of-n combination of the members, in the paper's order ({1,2,3,4}, {1,2,3,5}, ...)."""
+    if size < 2 or size > len(member_seeds):
+        raise ValueError(f"cannot form ensembles of {size} from {len(member_seeds)} members {member_seeds}; "
+                         "use 2 <= ensemble_size <= the number of member seeds")
+    return list(itertools.combinations(member_seeds, size))
+
+
+def combination_name(members: tuple[int, ...]) -> str:
+    return "members-" + "-".join(map(str, members))
+
+
+@dataclass(frozen=True)
+class EnsemblesConfig:
+    """The `ensembles` section for the active profile, validated, with the paths of every run."""
+
+    run: RunConfig
+    budget_fraction: float
+    epochs_factor: int
+    ensemble_size: int
+    envs: list[str]
+    member_seeds: list[int]
+    full_timesteps: int | None
+    own_envs: list[str]
+    own_methods: list[str]
+    own_seeds: list[int]
+
+    # --- the rule ---------------------------------------------------------------------------
+    def member_budget(self, env_id: str) -> tuple[int, int]:
+        """(training steps, n_epochs) of one independent member: a fraction of the steps, a multiple of the epochs."""
+        hp = self.run.hyperparameters[env_id]
+        full = self.full_timesteps or self.run.budget(env_id) or hp["total_timesteps"]
+        epochs = (self.run.overrides or {}).get("n_epochs", hp["algo"]["n_epochs"])
+        return max(1, round(self.budget_fraction * full)), self.epochs_factor * epochs
+
+    def member_overrides(self, env_id: str) -> dict[str, Any]:
+        return {**(self.run.overrides or {}), "n_epochs": self.member_budget(env_id)[1]}
+
+    def combinations(self) -> list[tuple[int, ...]]:
+        return combinations(self.member_seeds, self.ensemble_size)
+
+    # --- the three results trees ----------------------------------------------------------------
+    @property
+    def independent(self) -> RunConfig:
+        """The members' tree: results/<profile>/independent/, members are `baseline` runs."""
+        return dataclasses.replace(self.run, profile=f"{self.run.profile}/independent", envs=self.envs,
+                                   methods=["baseline"], seeds=self.member_seeds)
+
+    @property
+    def shared(self) -> RunConfig:
+        """The shared twins: the main tree, restricted to the own-vs-shared matrix."""
+        return dataclasses.replace(self.run, envs=self.own_envs, methods=self.own_methods, seeds=self.own_seeds)
+
+    @property
+    def own(self) -> RunConfig:
+        """The own runs: results/<profile>/own/, laid out like the main tree."""
+        return dataclasses.replace(self.shared, profile=f"{self.run.profile}/own")
+
+    def tree(self, assignment: str) -> RunConfig:
+        return self.own if assignment == "own" else self.shared
+
+    def member_dir(self, env_id: str, seed: int) -> Path:
+        return self.independent.checkpoint_dir(env_id, "baseline", seed)
+
+    def combination_dataset(self, env_id: str, members: tuple[int, ...]) -> Path:
+        return self.independent.results / "datasets" / env_id / f"{combination_name(members)}.npz"
+
+    def combination_evaluation(self, env_id: str, members: tuple[int, ...]) -> Path:
+        return self.independent.results / "evaluations" / env_id / f"{combination_name(members)}.csv"
+
+    def combination_metrics(self, env_id: str, members: tuple[int, ...]) -> Path:
+        return self.independent.results / "scores" / env_id / combination_name(members) / "metrics.csv"
+
+    def own_runs(self) -> list[tuple[str, str, int]]:
+        return self.shared.runs()
+
+    # --- captions -----------------------------------------------------------------------------
+    def independent_caption(self) -> str:
+        """The budget of the independent ensembles, for table captions."""
+        steps = ", ".join(f"{e} {s:,} steps x {n} epochs" for e in self.envs for s, n in [self.member_budget(e)])
+        return (f"profile '{self.run.profile}': members with seeds {self.member_seeds}, each trained alone with "
+                f"{self.budget_fraction:g} of the steps and {self.epochs_factor}x the epochs ({steps}); "
+                f"ensembles of {self.ensemble_size} from {len(self.combinations())} combinations; "
+                f"{self.run.eval_episodes} evaluation episodes per combination; {self.run.protocol_caption()}")
+
+    def own_caption(self) -> str:
+        """The budget of the own-vs-shared comparison, for table captions."""
+        steps = self.run.steps_caption()
+        return (f"profile '{self.run.profile}': seeds {self.own_seeds}, {steps} training steps per run (the main "
+                f"matrix's recipe and budget), {self.run.eval_episodes} evaluation episodes; "
+                f"{self.run.protocol_caption()}")
+
+    def describe(self) -> str:
+        return f"independent ensembles ({self.independent_caption()}); own vs shared ({self.own_caption()})"
+
+
+def load_ensembles_config(path: str | Path = PARAMS_FILE) -> EnsemblesConfig:
+    """params.yaml's `ensembles` section for the active profile; every error names the file and the fix."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
+    text = path.read_text()
+    try:
+        params = yaml.safe_load(text)
+    except yaml.YAMLError:
+        parse_params(text, path)  # raises the pipeline's one-line syntax error (file, line, fix)
+        raise
+    section = params.pop(SECTION, None) if isinstance(params, dict) else None
+    # the rest of params.yaml gets the pipeline's own checks, as if this section were not there
+    run = validate_params(parse_params(yaml.safe_dump(params), path), path)
+    if not isinstance(section, dict):
+        raise ValueError(f"{path} has no `{SECTION}` section (or it is not a mapping); add it, see docs/ensembles.md")
+    rule, profiles = section.get("rule"), section.get("profiles")
+    if not isinstance(rule, dict) or set(rule) != {"budget_fraction", "epochs_factor", "ensemble_size"}:
+        raise _fail(path, "rule", f"must give exactly budget_fraction, epochs_factor and ensemble_size, got {rule!r}")
+    fraction = rule["budget_fraction"]
+    if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
+        raise _fail(path, "rule.budget_fraction", f"must be a number in (0, 1], got {fraction!r}")
+    for key, minimum in (("epochs_factor", 1), ("ensemble_size", 2)):
+        value = rule[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise _fail(path, f"rule.{key}", f"must be an integer >= {minimum}, got {value!r}")
+    if not isinstance(profiles, dict) or run.profile not in profiles:
+        raise _fail(path, "profiles", f"has no entry for the active profile {run.profile!r}; add "
+                                      f"`{run.profile}: {{independent: ..., own_vs_shared: ...}}`")
+    entry, where = profiles[run.profile], f"profiles.{run.profile}"
+    if not isinstance(entry, dict) or set(entry) != {"independent", "own_vs_shared"}:
+        raise _fail(path, where, f"must give exactly `independent` and `own_vs_shared`, got {entry!r}")
+    ind, ovs, hps = entry["independent"], entry["own_vs_shared"], run.hyperparameters
+    if not isinstance(ind, dict) or set(ind) != {"envs", "member_seeds", "total_timesteps"}:
+        raise _fail(path, f"{where}.independent", f"must give envs, member_seeds and total_timesteps, got {ind!r}")
+    if not isinstance(ovs, dict) or set(ovs) != {"envs", "methods", "seeds"}:
+        raise _fail(path, f"{where}.own_vs_shared", f"must give envs, methods and seeds, got {ovs!r}")
+    full = ind["total_timesteps"]
+    if full is not None and (isinstance(full, bool) or not isinstance(full, int) or full < 1):
+        raise _fail(path, f"{where}.independent.total_timesteps", f"must be null or a positive integer, got {full!r}")
+    seeds = _int_list(ind["member_seeds"], path, f"{where}.independent.member_seeds")
+    if len(seeds) < rule["ensemble_size"]:
+        raise _fail(path, f"{where}.independent.member_seeds",
+                    f"{len(seeds)} members cannot form ensembles of {rule['ensemble_size']}; list more seeds")
+    return EnsemblesConfig(
+        run=run, budget_fraction=float(fraction), epochs_factor=rule["epochs_factor"],
+        ensemble_size=rule["ensemble_size"], envs=_name_list(ind["envs"], list(hps), path, f"{where}.independent.envs"),
+        member_seeds=seeds, full_timesteps=full,
+        own_envs=_name_list(ovs["envs"], [e for e in hps if not is_atari(e)], path, f"{where}.own_vs_shared.envs"),
+        own_methods=_name_list(ovs["methods"], MEMBER_METHODS, path, f"{where}.own_vs_shared.methods"),
+        own_seeds=_int_list(ovs["seeds"], path, f"{where}.own_vs_shared.seeds"),
+    )
+
+
+# ------------------------------------------------------------------------------------ training
+
+
+def member_train_args(cfg: EnsemblesConfig, env_id: str) -> tuple[int, dict[str, Any]]:
+    """(total_timesteps, agent_kwargs) of an independent member: paper_lib.agents.training.train_run's arguments."""
+    steps, _ = cfg.member_budget(env_id)
+    return steps, {"hyperparameters": cfg.run.hyperparameters[env_id], "overrides": cfg.member_overrides(env_id),
+                   "inference": cfg.run.inference}
+
+
+def own_train_args(cfg: EnsemblesConfig, env_id: str) -> tuple[int | None, dict[str, Any]]:
+    """(total_timesteps, agent_kwargs) of an `own` run: the main matrix's recipe and budget, assignment own."""
+    return cfg.run.budget(env_id), {"hyperparameters": cfg.run.hyperparameters[env_id],
+                                     "overrides": cfg.run.overrides or None, "inference": cfg.run.inference,
+                                     "assignment": "own"}
+
+
+def train_member(cfg: EnsemblesConfig, env_id: str, seed: int, **train_kwargs: Any) -> Path:
+    from paper_lib.agents.training import train_run
+
+    steps, kwargs = member_train_args(cfg, env_id)
+    return train_run(env_id, "baseline", seed, cfg.member_dir(env_id, seed), total_timesteps=steps,
+                     agent_kwargs=kwargs, **train_kwargs)
+
+
+def train_own(cfg: EnsemblesConfig, env_id: str, method: str, seed: int, **train_kwargs: Any) -> Path:
+    from paper_lib.agents.training import train_run
+
+    steps, kwargs = own_train_args(cfg, env_id)
+    return train_run(env_id, method, seed, cfg.own.checkpoint_dir(env_id, method, seed), total_timesteps=steps,
+                     agent_kwargs=kwargs, **train_kwargs)
+
+
+def member_command(cfg: EnsemblesConfig, env_id: str, seed: int, resume_root: str | None = None,
+                   python: str = ".venv/bin/python") -> str:
+    """The `python -m paper_lib.agents.training` line that trains one member exactly as `train_member` does."""
+    steps, _ = cfg.member_budget(env_id)
+    return train_command([env_id, "baseline", str(seed), str(cfg.member_dir(env_id, seed)), f"--timesteps {steps}",
+                        *hp_flags(cfg.member_overrides(env_id))], resume_root, python)
+
+
+def run_command(cfg: EnsemblesConfig, assignment: str, env_id: str, method: str, seed: int,
+                resume_root: str | None = None, python: str = ".venv/bin/python") -> str:
+    """The training line of an `own` run, or of a missing `shared` twin as the main matrix trains it."""
+    args = [env_id, method, str(seed), str(cfg.tree(assignment).checkpoint_dir(env_id, method, seed))]
+    if cfg.run.budget(env_id) is not None:
+        args.append(f"--timesteps {cfg.run.budget(env_id)}")
+    if assignment == "own":
+        args.append("--assignment own")
+    return train_command(args + hp_flags(cfg.run.overrides or {}), resume_root, python)
+
+
+# --------------------------------------------------------------------------------- what exists
+
+
+def read_config(folder: Path) -> dict[str, Any] | None:
+    """A checkpoint folder's config.json, or None where the run is not (completely) trained."""
+    try:
+        return json.loads((folder / "config.json").read_text()) if (folder / "model.zip").is_file() else None
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def member_problem(cfg: EnsemblesConfig, env_id: str, seed: int) -> str | None:
+    """Why member (env, seed) cannot be used yet, or None."""
+    config = read_config(cfg.member_dir(env_id, seed))
+    if config is None:
+        return "not trained"
+    steps, overrides = cfg.member_budget(env_id)[0], cfg.member_overrides(env_id)
+    expected_algo = {**cfg.run.hyperparameters[env_id]["algo"], **overrides}
+    if config.get("method") != "baseline" or config.get("env_id") != env_id or config.get("seed") != seed:
+        return f"holds {config.get('env_id')} {config.get('method')} seed {config.get('seed')}"
+    if config.get("total_timesteps") != steps or config.get("algo_kwargs") != expected_algo:
+        return (f"trained with {config.get('total_timesteps')} steps and {config.get('algo_kwargs')}, the rule gives "
+                f"{steps} steps and {expected_algo}; retrain it")
+    return None
+
+
+def own_problem(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> str | None:
+    """Why the own run (env, method, seed) is not trained as the profile says, or None."""
+    config = read_config(cfg.own.checkpoint_dir(env_id, method, seed))
+    if config is None:
+        return "not trained"
+    hp = cfg.run.hyperparameters[env_id]
+    expected = dict(env_id=env_id, method=method, seed=seed, assignment="own",
+                    algo_kwargs={**hp["algo"], **(cfg.run.overrides or {})},
+                    total_timesteps=cfg.run.budget(env_id) or hp["total_timesteps"])
+    differ = [k for k, v in expected.items() if config.get(k) != v]
+    return f"trained with other {differ}; retrain it" if differ else None
+
+
+def pair_problem(shared: dict[str, Any] | None, own: dict[str, Any] | None) -> str | None:
+    """Why a shared run and its own twin cannot be compared, or None."""
+    if shared is None or own is None:
+        return " and ".join(name for name, c in (("shared", shared), ("own", own)) if c is None) + " not trained"
+    if shared.get("assignment", "shared") != "shared" or own.get("assignment") != "own":
+        return f"assignments are {shared.get('assignment')!r} / {own.get('assignment')!r}"
+    differ = [k for k in TRAINING_KEYS if config_value(shared, k) != config_value(own, k)]
+    if differ:
+        return "trained with different settings: " + "; ".join(f"{k}: shared {shared.get(k)!r}, own {own.get(k)!r}"
+                                                               for k in differ)
+    return None
+
+
+def run_has(tree: RunConfig, run: tuple[str, str, int], artifact: str) -> bool:
+    """Whether a run of `tree` (the main tree or a mirror) has `artifact` (one of ARTIFACTS)."""
+    from paper_lib.pipeline.status import has
+
+    return has(tree, run, artifact)
+
+
+def combination_has(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...], artifact: str) -> bool:
+    if artifact == "checkpoint":
+        return all(member_problem(cfg, env_id, s) is None for s in members)
+    path = {"dataset": cfg.combination_dataset, "evaluation": cfg.combination_evaluation,
+            "scores": cfg.combination_metrics}[artifact](env_id, members)
+    return path.is_file()
+
+
+def complete_pairs(cfg: EnsemblesConfig) -> list[tuple[str, str, int]]:
+    """The own-vs-shared runs whose two twins have every artifact and were trained alike."""
+    return [run for run in cfg.own_runs()
+            if all(run_has(cfg.tree(a), run, art) for a in ASSIGNMENTS for art in ARTIFACTS)
+            and pair_problem(*(read_config(cfg.tree(a).checkpoint_dir(*run)) for a in ASSIGNMENTS)) is None]
+
+
+def complete_combinations(cfg: EnsemblesConfig) -> list[tuple[str, int, tuple[int, ...]]]:
+    """(env, index, members) of every combination with all its members, states, episodes and scores."""
+    return [(e, c, m) for e in cfg.envs for c, m in enumerate(cfg.combinations())
+            if all(combination_has(cfg, e, m, art) for art in ARTIFACTS)]
+
+
+def _shared_fix(cfg: EnsemblesConfig, run: tuple[str, str, int], artifact: str) -> str:
+    in_main = run in cfg.run.runs()
+    stage = {"dataset": "collect", "evaluation": "evaluate", "scores": "score"}[artifact]
+    if in_main:
+        return f"dvc repro -s {stage}@{run[0]}-{run[1]}-{run[2]}"
+    return f"python -m paper_lib.experiments.ensembles {'collect' if artifact == 'dataset' else 'evaluate'}"
+
+
+def missing_runs(cfg: EnsemblesConfig) -> pd.DataFrame:
+    """Every run, dataset, evaluation or score the tables need and do not have yet, why, and the fix."""
+    rows = []
+
+    def add(part, env_id, method, seed, who, artifact, path, problem, fix):
+        rows.append(dict(part=part, env=env_id, method=method, seed=seed, run=who, artifact=artifact, path=str(path),
+                         problem=problem, fix=fix))
+
+    for env_id in cfg.envs:
+        for seed in cfg.member_seeds:
+            if problem := member_problem(cfg, env_id, seed):
+                add("independent", env_id, "baseline", seed, "member", "checkpoint", cfg.member_dir(env_id, seed),
+                    problem, member_command(cfg, env_id, seed))
+        for members in cfg.combinations():
+            if not combination_has(cfg, env_id, members, "checkpoint"):
+                continue
+            for artifact, path in (("dataset", cfg.combination_dataset(env_id, members)),
+                                   ("evaluation", cfg.combination_evaluation(env_id, members)),
+                                   ("scores", cfg.combination_metrics(env_id, members))):
+                if not path.is_file():
+                    command = "collect" if artifact == "dataset" else "evaluate"
+                    add("independent", env_id, "baseline", None, combination_name(members), artifact, path,
+                        "missing", f"python -m paper_lib.experiments.ensembles {command}")
+    for run in cfg.own_runs():
+        env_id, method, seed = run
+        for assignment in ASSIGNMENTS:
+            tree = cfg.tree(assignment)
+            for artifact in ARTIFACTS:
+                if run_has(tree, run, artifact) and not (artifact == "checkpoint" and assignment == "own"
+                                                         and own_problem(cfg, *run)):
+                    continue
+                path = {"checkpoint": tree.checkpoint_dir(*run), "dataset": tree.dataset_path(*run)}.get(
+                    artifact, tree.results / f"{artifact}s" / env_id / method / f"seed{seed}")
+                if artifact == "checkpoint":
+                    fix = run_command(cfg, assignment, *run)
+                elif assignment == "shared":
+                    fix = _shared_fix(cfg, run, artifact)
+                else:
+                    fix = f"python -m paper_lib.experiments.ensembles {'collect' if artifact == 'dataset' else 'evaluate'}"
+                problem = "missing" if artifact != "checkpoint" else (
+                    own_problem(cfg, *run) if assignment == "own" else "not trained")
+                add("own_vs_shared", env_id, method, seed, assignment, artifact, path, problem, fix)
+                break  # the later artifacts follow from this one
+        configs = [read_config(cfg.tree(a).checkpoint_dir(*run)) for a in ASSIGNMENTS]
+        if None not in configs and (problem := pair_problem(*configs)):
+            add("own_vs_shared", env_id, method, seed, "pair", "checkpoint", cfg.own.checkpoint_dir(*run), problem,
+                "retrain the older run with the current recipe")
+    columns = ["part", "env", "method", "seed", "run", "artifact", "path", "problem", "fix"]
+    return pd.DataFrame(rows, columns=columns).astype({"seed": "Int64"})  # no seed where a row is a combination
+
+
+def queue_lines(cfg: EnsemblesConfig, resume_root: str | None = None, python: str = ".venv/bin/python") -> list[str]:
+    """One training command per run that is missing (or, for a member, trained with other settings)."""
+    lines = []
+    for row in missing_runs(cfg).itertuples():
+        if row.run == "member":
+            lines.append(member_command(cfg, row.env, int(row.seed), resume_root, python))
+        elif row.run in ASSIGNMENTS and row.artifact == "checkpoint":
+            lines.append(run_command(cfg, row.run, row.env, row.method, int(row.seed), resume_root, python))
+    return lines
+
+
+# ---------------------------------------------------------------------------- assembled ensembles
+
+
+def assemble_members(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]) -> Checkpoint:
+    """The members' checkpoints as one ensemble (no retraining), wrapped like a checkpoint for evaluation.
+
+    The ensemble takes raw observations (each member applies its own normalizer), so the
+    checkpoint has no normalizer of its own: `Checkpoint.env` is the plain env.
+    """
+    checkpoints = [load_checkpoint(cfg.member_dir(env_id, s), env_id, "baseline", s) for s in members]
+    normalizers = [_read_normalizer(c.vecnormalize_path) if c.vecnormalize_path is not None else None
+                   for c in checkpoints]
+    config = dict(algo="ppo", method="independent_ensemble", env_id=env_id, member_seeds=list(members),
+                  n_members=len(members), inference=cfg.run.inference, normalize_obs=False,
+                  members_normalize_obs=any(n is not None for n in normalizers),
+                  member_folders=[str(c.folder) for c in checkpoints])
+    model = assemble_ensemble([c.model for c in checkpoints], normalizers, inference=cfg.run.inference,
+                              member_seeds=list(members), config=config)
+    return Checkpoint(model, config, None, cfg.member_dir(env_id, members[0]).parent)
+
+
+def _read_normalizer(path: Path) -> VecNormalize:
+    with open(path, "rb") as f:  # a pickled VecNormalize (no env attached), as train.py saves it
+        return pickle.load(f)
+
+
+# ---------------------------------------------------------------------- states, episodes, scores
+
+
+def evaluate_agent(run: RunConfig, checkpoint: Checkpoint, seed: int) -> pd.DataFrame:
+    """Evaluation episodes (combined and single inference, both action modes), seeded as `run_results.evaluate_run`."""
+    from paper_lib.scoring.rewards import evaluate_rewards
+
+    th.set_num_threads(1)
+    th.manual_seed(10_000 + seed)
+    return evaluate_rewards(checkpoint, run.eval_episodes, seed=10_000 + seed)
+
+
+def score_agent(run: RunConfig, checkpoint: Checkpoint, dataset: StateDataset, seed: int) -> pd.DataFrame:
+    """OOD metrics of every measure and detector, seeded like `run_results.score_run_files`."""
+    from paper_lib.scoring.ood_scores import score_run
+
+    th.set_num_threads(1)
+    th.manual_seed(seed)
+    return score_run(checkpoint, dataset, np.random.default_rng(seed), run.n_bootstrap).metrics
+
+
+def _csv(df: pd.DataFrame) -> str:
+    return df.to_csv(index=False, lineterminator="\n")
+
+
+def collect_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
+    """States of every trained combination and own run without them (and of shared twins outside the main matrix).
+
+    Combination c (in `cfg.combinations()` order) collects with seed c, through the main pipeline's
+    `collect_states` (the same calls and OOD source as every run of the tables); a run with its own seed.
+    """
+    _make_dirs(cfg, "datasets")
+    written = []
+    for env_id in cfg.envs:
+        for c, members in enumerate(cfg.combinations()):
+            path = cfg.combination_dataset(env_id, members)
+            if combination_has(cfg, env_id, members, "checkpoint") and not path.is_file():
+                ensemble = assemble_members(cfg, env_id, members)
+                written.append(collect_states(cfg.run, ensemble.model, env_id, c).save(path))
+                log(f"collected {path}")
+    for tree, run in _runs_to_do(cfg, "dataset"):
+        written.append(collect_run(tree, *run))
+        log(f"collected {written[-1]}")
+    return written
+
+
+def evaluate_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
+    """Reward episodes and OOD metrics of every combination and own run that has states but not these yet."""
+    from paper_lib.pipeline.run_results import evaluate_run, score_run_files
+
+    _make_dirs(cfg, "evaluations", "scores")
+    written = []
+    for env_id in cfg.envs:
+        for c, members in enumerate(cfg.combinations()):
+            if not combination_has(cfg, env_id, members, "dataset") or not combination_has(cfg, env_id, members,
+                                                                                             "checkpoint"):
+                continue
+            tag = dict(env=env_id, method="independent_ensemble", combination=c, members=combination_name(members))
+            todo = [p for p in (cfg.combination_evaluation(env_id, members), cfg.combination_metrics(env_id, members))
+                    if not p.is_file()]
+            if not todo:
+                continue
+            ensemble = assemble_members(cfg, env_id, members)
+            if not cfg.combination_evaluation(env_id, members).is_file():
+                episodes = evaluate_agent(cfg.run, ensemble, c).assign(**tag)
+                written.append(write_text_atomic(cfg.combination_evaluation(env_id, members), _csv(episodes)))
+            if not cfg.combination_metrics(env_id, members).is_file():
+                data = StateDataset.load(cfg.combination_dataset(env_id, members))
+                metrics = score_agent(cfg.run, ensemble, data, c).assign(**tag)
+                written.append(write_text_atomic(cfg.combination_metrics(env_id, members), _csv(metrics)))
+            log(f"evaluated {env_id} {combination_name(members)}")
+    for tree, run in _runs_to_do(cfg, "evaluation"):
+        written.append(evaluate_run(tree, *run))
+        log(f"evaluated {written[-1]}")
+    for tree, run in _runs_to_do(cfg, "scores"):
+        written.append(score_run_files(tree, *run))
+        log(f"scored {written[-1]}")
+    return written
+
+
+def _make_dirs(cfg: EnsemblesConfig, *kinds: str) -> None:
+    """The folders a pipeline stage declares as outputs exist even while no run has reached them."""
+    for tree in (cfg.independent, cfg.own):
+        for kind in kinds:
+            (tree.results / kind).mkdir(parents=True, exist_ok=True)
+
+
+def _runs_to_do(cfg: EnsemblesConfig, artifact: str) -> list[tuple[RunConfig, tuple[str, str, int]]]:
+    """Own runs, and shared twins the main matrix does not hold, that have what `artifact` needs but not it."""
+    needs = {"dataset": ("checkpoint",), "evaluation": ("checkpoint",), "scores": ("checkpoint", "dataset")}[artifact]
+    todo = []
+    for run in cfg.own_runs():
+        for assignment in ASSIGNMENTS:
+            tree = cfg.tree(assignment)
+            if assignment == "shared" and run in cfg.run.runs():
+                continue  # the main pipeline's stages make these
+            if all(run_has(tree, run, n) for n in needs) and not run_has(tree, run, artifact):
+                todo.append((tree, run))
+    return todo
+
+
+# ------------------------------------------------------------------------------------------ CLI
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--params", default=str(PARAMS_FILE))
+    sub = parser.add_subparsers(dest="command", required=True)
+    train = sub.add_parser("train", help="train the runs of one part (all of it, or the ones selected)")
+    train.add_argument("part", choices=("independent", "own"))
+    train.add_argument("--env", action="append", help="only this env (repeatable)")
+    train.add_argument("--method", action="append", help="only this method (own runs; repeatable)")
+    train.add_argument("--seed", action="append", type=int, help="only this seed (repeatable)")
+    train.add_argument("--threads", type=int, default=1, help="torch threads")
+    train.add_argument("--force", action="store_true", help="retrain runs whose checkpoint is already up to date")
+    sub.add_parser("collect", help="collect the ID/OOD states of every trained combination and run that lacks them")
+    sub.add_parser("evaluate", help="reward episodes and OOD scores of every combination and run that lacks them")
+    queue = sub.add_parser("queue", help="print the training commands of the runs still missing")
+    queue.add_argument("--resume-root", default=None, help="prefix each line with env PAPER_LIB_RESUME_ROOT=DIR")
+    queue.add_argument("--python", default=".venv/bin/python")
+    sub.add_parser("missing", help="list what the tables still lack")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_ensembles_config(args.params)
+        if args.command == "train":
+            if args.threads < 1:
+                raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
+            _train(cfg, args)
+        elif args.command == "collect":
+            collect_all(cfg)
+        elif args.command == "evaluate":
+            evaluate_all(cfg)
+        elif args.command == "queue":
+            for line in queue_lines(cfg, args.resume_root, args.python):
+                print(line)
+        else:
+            with pd.option_context("display.max_colwidth", 80, "display.width", 200):
+                print(missing_runs(cfg).drop(columns="fix").to_string(index=False))
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+
+
+def _train(cfg: EnsemblesConfig, args: argparse.Namespace) -> None:
+    def chosen(values: list[Any], picked: list[Any] | None, what: str) -> list[Any]:
+        unknown = sorted(set(picked or []) - set(values), key=str)
+        if unknown:
+            raise ValueError(f"{what} {unknown} is not in this profile's {what}s {values}; pick from those")
+        return [v for v in values if picked is None or v in picked]
+
+    if args.part == "independent":
+        if args.method:
+            raise ValueError("--method only applies to `train own`; independent members are baseline agents")
+        for env_id in chosen(cfg.envs, args.env, "env"):
+            for seed in chosen(cfg.member_seeds, args.seed, "seed"):
+                if args.force or member_problem(cfg, env_id, seed):
+                    print(train_member(cfg, env_id, seed, torch_threads=args.threads), file=sys.stderr)
+        return
+    for env_id in chosen(cfg.own_envs, args.env, "env"):
+        for method in chosen(cfg.own_methods, args.method, "method"):
+            for seed in chosen(cfg.own_seeds, args.seed, "seed"):
+                if args.force or own_problem(cfg, env_id, method, seed):
+                    print(train_own(cfg, env_id, method, seed, torch_threads=args.threads), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

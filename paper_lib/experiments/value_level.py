@@ -1,0 +1,106 @@
+"""Is value uncertainty more than a low value? The agent's own value estimate as a confound of value std.
+
+Why this exists: on HalfCheetah our MC Dropout and MC DropConnect agents score the perturbed states
+*below* chance with value std (Table 2), where the paper reports 0.40-0.74. A perturbed state is
+mostly one where the agent does badly, so its own value estimate V drops; value std then flags those
+states only if the members disagree more where V is low. Where they disagree more on high-value
+states (std rising with V), a low V hides the OOD state. This module measures, per run, on the
+run's own ID/OOD dataset (perturbed or game states, the ID side split as in scoring):
+
+- ``value_auroc``: AUROC of -V (the member mean), a member-free score that needs no uncertainty;
+- ``value_std_auroc``: AUROC of value std on the same states;
+- ``id_rank_corr``: Spearman correlation of V and value std on the ID fit states;
+- ``value_std_beyond_value_auroc``: AUROC of value std minus its linear trend in V, the trend fitted
+  on the ID fit states only (no OOD label is used), so what value std says beyond the value level.
+Notebook 13 (the `value_level` stage) runs it on every run with a dataset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy.stats import spearmanr
+from sklearn.metrics import roc_auc_score
+
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.measures.definitions import value_std
+from paper_lib.measures.detectors import split_fit_eval
+from paper_lib.measures.estimates import member_outputs
+from paper_lib.ood.datasets import StateDataset
+
+#: The per-run numbers of ``value_level_row`` (after env, method, seed).
+COLUMNS = ("n_members", "n_id", "n_ood", "value_auroc", "value_std_auroc", "id_rank_corr",
+           "value_std_beyond_value_auroc")
+AUROCS = ("value_auroc", "value_std_auroc", "value_std_beyond_value_auroc")
+
+
+def _observations(data: StateDataset) -> np.ndarray:
+    """The states as the policy sees them (after the run's frozen VecNormalize, where it had one)."""
+    return data.policy_obs if data.policy_obs is not None else data.states
+
+
+def value_level_row(run: Checkpoint, dataset: StateDataset, seed: int) -> dict[str, float]:
+    """The run's value-level numbers (see the module docstring); value std columns are NaN for a baseline.
+
+    ``seed`` is the run's seed: it fixes the ID fit/eval split exactly as scoring does (the first draw
+    of ``np.random.default_rng(seed)``) and the MC methods' member samples.
+    """
+    id_data, ood_data = dataset.id_only(), dataset.ood_only()
+    if len(id_data) < 4 or len(ood_data) == 0:
+        raise ValueError(f"the dataset has {len(id_data)} ID and {len(ood_data)} OOD states; the value-level "
+                         "analysis needs both (at least 4 ID states to split); collect the run's dataset again")
+    fit_idx, eval_idx = split_fit_eval(len(id_data), np.random.default_rng(seed), groups=id_data.episode)
+    parts = {"fit": id_data.subset(fit_idx), "id": id_data.subset(eval_idx), "ood": ood_data}
+    values = {name: member_outputs(run.model.policy, _observations(part), seed=seed + i).values
+              for i, (name, part) in enumerate(parts.items())}
+    value = {name: v.mean(axis=0) for name, v in values.items()}
+    std = {name: value_std(v) for name, v in values.items()}
+    labels = np.r_[np.zeros(len(parts["id"])), np.ones(len(parts["ood"]))]
+
+    def auroc(score: dict[str, np.ndarray]) -> float:
+        return float(roc_auc_score(labels, np.r_[score["id"], score["ood"]]))
+
+    row = {"n_members": values["fit"].shape[0], "n_id": len(parts["id"]), "n_ood": len(parts["ood"]),
+           "value_auroc": auroc({name: -v for name, v in value.items()})}
+    if row["n_members"] == 1 or np.ptp(std["fit"]) == 0:  # a single network: no value std
+        return {**row, "value_std_auroc": np.nan, "id_rank_corr": np.nan, "value_std_beyond_value_auroc": np.nan}
+    slope, intercept = np.polyfit(value["fit"], std["fit"], 1)
+    beyond = {name: std[name] - (slope * value[name] + intercept) for name in parts}
+    return {**row, "value_std_auroc": auroc(std), "id_rank_corr": float(spearmanr(value["fit"], std["fit"]).statistic),
+            "value_std_beyond_value_auroc": auroc(beyond)}
+
+
+def value_level_table(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per (env, method): the per-run numbers as the mean over seeds, with the number of seeds."""
+    numbers = ["value_auroc", "value_std_auroc", "value_std_beyond_value_auroc", "id_rank_corr"]
+    cells = rows.groupby(["env", "method"], sort=False)
+    return cells[numbers].mean().assign(seeds=cells.size()).reset_index()
+
+
+def _span(values: pd.Series) -> str:
+    """"0.84-0.94", or one number where every value rounds the same."""
+    low, high = f"{values.min():.2f}", f"{values.max():.2f}"
+    return low if low == high else f"{low}-{high}"
+
+
+def value_level_reading(table: pd.DataFrame, shift: float = 0.1) -> list[str]:
+    """One line per env: how far -V alone goes, and where removing the value trend moves value std by ``shift`` or more."""
+    lines = []
+    for env_id, cells in table.groupby("env", sort=False):
+        best = cells.loc[cells.value_auroc.idxmax()]
+        line = (f"**{env_id}**: -V alone reaches AUROC {_span(cells.value_auroc)} "
+                f"(best: {best.method} {best.value_auroc:.2f})")
+        members = cells.dropna(subset=["value_std_auroc"])
+        if len(members):
+            top = members.loc[members.value_std_auroc.idxmax()]
+            line += f", the best value std {top.method} {top.value_std_auroc:.2f}"
+        moved = members[(members.value_std_beyond_value_auroc - members.value_std_auroc).abs() >= shift]
+        if len(members) and len(moved):
+            line += "; value std, raw -> beyond the value trend: " + ", ".join(
+                f"{c.method} {c.value_std_auroc:.2f} -> {c.value_std_beyond_value_auroc:.2f} (ID rank corr. "
+                f"{c.id_rank_corr:+.2f})" for c in moved.itertuples())
+        elif len(members):
+            line += f"; removing the value trend moves no method's value-std AUROC by {shift} or more"
+        seeds = sorted(set(cells.seeds))
+        lines.append(line + f" ({'/'.join(map(str, seeds))} seed(s) per cell).")
+    return lines

@@ -1,0 +1,205 @@
+"""One batched call from a policy and N states to every uncertainty measure.
+
+MC methods (MC Dropout, MC DropConnect) sample their k members per state: each state gets
+its own seed, drawn up front for all N states from `seed` (or from torch's RNG when None),
+so a state's scores do not depend on the batch it is scored in, and the same seed gives the
+same scores whatever `batch_size` is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.preprocessing import is_image_space
+
+from paper_lib.measures import definitions as measures
+from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions, draw_state_seeds
+
+
+@dataclass
+class MemberOutputs:
+    """Raw outputs of the k members on N states (for uncertainty, plots and analysis)."""
+
+    values: np.ndarray  # (k, N)
+    action_params: np.ndarray  # (k, N, A): logits (discrete) or action means (continuous)
+    discrete: bool
+
+
+def check_observations(policy: ActorCriticPolicy, observations: np.ndarray, *, single_ok: bool = False,
+                       what: str = "observations") -> tuple[np.ndarray, bool]:
+    """`observations` as an (N, *obs_shape) array with N >= 1 and finite values, or one ValueError.
+
+    Returns (batch, vectorized); a single observation (no batch axis) is accepted where
+    `single_ok`. Channel-last images are accepted for image policies, as SB3 accepts them.
+    """
+    obs = np.asarray(observations)
+    space = policy.observation_space
+    shapes = [tuple(space.shape)]
+    if obs.shape[1:] != shapes[0] and obs.shape != shapes[0] and is_image_space(space) and len(space.shape) == 3:
+        shapes.append((space.shape[1], space.shape[2], space.shape[0]))  # SB3 transposes channel-last images
+    if single_ok and obs.shape in shapes:
+        obs, vectorized = obs[None], False
+    else:
+        vectorized = True
+    if obs.ndim == 0 or obs.shape[1:] not in shapes or obs.shape[0] == 0 or obs.dtype == object:
+        expected = " or ".join(f"(N, {', '.join(map(str, s))})" for s in shapes)
+        raise ValueError(f"{what} have shape {obs.shape} but this policy takes {expected} with N >= 1 "
+                         f"(its observation space is {space}); pass states of the env it was trained on, "
+                         "stacked along a first axis")
+    if np.issubdtype(obs.dtype, np.number) and not np.issubdtype(obs.dtype, np.integer) and not np.isfinite(obs).all():
+        bad = int((~np.isfinite(obs.reshape(len(obs), -1))).any(axis=1).sum())
+        raise ValueError(f"{what} hold NaN or inf in {bad} of {len(obs)} states; drop or fix those states first")
+    return obs, vectorized
+
+
+def _state_seeds(policy: ActorCriticPolicy, n: int, seed: int | None) -> np.ndarray | None:
+    """One seed per state, for every state at once (so batching cannot change them); None without MC layers."""
+    if not (isinstance(policy, MemberActorCriticPolicy) and policy.samples_members):
+        return None
+    generator = None if seed is None else th.Generator().manual_seed(int(seed))
+    return draw_state_seeds(n, generator)
+
+
+def _batches(policy: ActorCriticPolicy, obs: np.ndarray, batch_size: int, seed: int | None, actor: bool = True,
+             critic: bool = True) -> Iterator[tuple[th.Tensor | None, th.Tensor | None]]:
+    """(k, n, A) action params and (k, n) values of successive batches of `obs`, without autograd.
+
+    A baseline policy is a single member (k = 1). The per-state seeds of MC methods are drawn
+    for all states up front, so the batching cannot change them. A member policy skips the
+    output not asked for (None); its MC masks do not depend on that.
+    """
+    seeds = _state_seeds(policy, len(obs), seed)
+    policy.set_training_mode(False)
+    with th.no_grad():
+        for start in range(0, obs.shape[0], batch_size):
+            tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
+            if isinstance(policy, MemberActorCriticPolicy):
+                yield policy.member_outputs_from_tensor(tensor, None if seeds is None else seeds[start:start + batch_size],
+                                                        actor=actor, critic=critic)
+            else:
+                yield _single_member(policy, tensor)
+
+
+def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+                   seed: int | None = None) -> MemberOutputs:
+    """All members on all states, in batches of `batch_size` states, one forward pass each.
+
+    `observations` are what the policy sees (after VecNormalize, if the env used it). A
+    baseline policy is returned as a single member (k = 1). MC methods sample per (member,
+    state) from per-state seeds drawn from `seed` (torch's global RNG when None).
+    """
+    discrete = isinstance(policy.action_space, spaces.Discrete)
+    obs, _ = check_observations(policy, observations)
+    values, params = [], []
+    for pi, vf in _batches(policy, obs, batch_size, seed):
+        values.append(vf.cpu().numpy())
+        params.append(pi.cpu().numpy())
+    return MemberOutputs(np.concatenate(values, axis=1), np.concatenate(params, axis=1), discrete)
+
+
+def _single_member(policy: ActorCriticPolicy, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    features = policy.extract_features(obs)
+    if policy.share_features_extractor:
+        latent_pi, latent_vf = policy.mlp_extractor(features)
+    else:
+        latent_pi, latent_vf = policy.mlp_extractor.forward_actor(features[0]), policy.mlp_extractor.forward_critic(features[1])
+    return policy.action_net(latent_pi)[None], policy.value_net(latent_vf).squeeze(-1)[None]
+
+
+def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wanted: tuple[str, ...] | None = None,
+                batch_size: int = 1024, seed: int | None = None) -> dict[str, np.ndarray]:
+    """Every applicable measure, each of shape (N,).
+
+    value_std, policy_std and policy_js need members; max_prob and entropy exist for discrete
+    actions only. A baseline policy (no members) gives max_prob and entropy; asking it for a
+    member measure is an error. A baseline with continuous actions has no measure: {}.
+    `seed` fixes the MC methods' samples (see `member_outputs`). The measures are computed in
+    torch on each batch's member outputs (`measures.torch_measures`); only they become numpy.
+    """
+    obs, _ = check_observations(policy, observations)
+    discrete = isinstance(policy.action_space, spaces.Discrete)
+    k = policy.n_members if isinstance(policy, MemberActorCriticPolicy) else 1
+    available = (measures.MEMBER_MEASURES if k > 1 else ()) + (measures.DISCRETE_ONLY if discrete else ())
+    wanted = available if measures_wanted is None else tuple(measures_wanted)
+    for name in wanted:
+        if name not in available:
+            if name in measures.MEMBER_MEASURES and k == 1:
+                raise ValueError(f"{name} needs ensemble members, but this policy has none (baseline); "
+                                 "use a member method or ask for max_prob / entropy")
+            raise ValueError(f"measure {name!r} is not available here; available: {available}")
+    if not wanted:
+        return {}  # a baseline with continuous actions: no measure applies (member-free detectors still do)
+    parts: dict[str, list[th.Tensor]] = {name: [] for name in wanted}
+    value_only = set(wanted) == {"value_std"}
+    for pi, vf in _batches(policy, obs, batch_size, seed, actor=not value_only, critic="value_std" in wanted):
+        for name, value in measures.torch_measures(vf, pi, discrete, wanted).items():
+            parts[name].append(value)
+    return {name: th.cat(values).cpu().numpy() for name, values in parts.items()}
+
+
+def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+                    seed: int | None = None) -> np.ndarray:
+    """The policy's last hidden layer on N states, (N, H): the input of its action head.
+
+    For member policies the members' features are averaged, so a member-free detector
+    (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
+    MC methods sample per (member, state), seeded like `member_outputs`.
+    """
+    obs, _ = check_observations(policy, observations)
+    seeds = _state_seeds(policy, len(obs), seed)
+    chunks = []
+    policy.set_training_mode(False)
+    with th.no_grad():
+        for start in range(0, obs.shape[0], batch_size):
+            tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
+            chunks.append(_last_hidden(policy, tensor, None if seeds is None else seeds[start:start + batch_size])
+                          .cpu().numpy())
+    return np.concatenate(chunks)
+
+
+def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
+    if isinstance(policy, MemberActorCriticPolicy):
+        return policy.last_hidden_from_tensor(obs, state_seeds).mean(0)
+    features = policy.extract_features(obs)
+    if not policy.share_features_extractor:
+        features = features[0]
+    return policy.mlp_extractor.forward_actor(features)
+
+
+def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarray, deterministic: bool = True
+                         ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Actions (combined as `predict` would) and every measure, from one batched pass over the members.
+
+    The deployment call: an agent that acts and says how unsure it is, at the cost of one
+    forward pass instead of `predict` plus `uncertainty` (two passes); the measures are
+    computed in torch on that pass's outputs.
+    """
+    if not isinstance(policy, MemberActorCriticPolicy):
+        raise ValueError("act_with_uncertainty needs a member policy; a baseline has no member-based uncertainty")
+    observation, vectorized = check_observations(policy, observation, single_ok=True, what="observation")
+    if policy.training:
+        policy.set_training_mode(False)
+    tensor = _checked_to_tensor(policy, observation)
+    discrete = isinstance(policy.action_space, spaces.Discrete)
+    with th.no_grad():
+        pi, vf = policy.member_outputs_from_tensor(tensor)
+        actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
+                                  **policy.inference_options).cpu().numpy()
+        scores = {name: value.cpu().numpy() for name, value in measures.torch_measures(vf, pi, discrete).items()}
+    actions = actions.reshape((-1, *policy.action_space.shape))
+    if isinstance(policy.action_space, spaces.Box):  # np.clip, as SB3's predict; this form is faster on small arrays
+        actions = np.minimum(np.maximum(actions, policy.action_space.low), policy.action_space.high)
+    return (actions if vectorized else actions[0]), scores
+
+
+def _checked_to_tensor(policy: ActorCriticPolicy, observation: np.ndarray) -> th.Tensor:
+    """SB3's `obs_to_tensor` of a batch `check_observations` accepted; flat observations without
+    its checks and copy, which cost more than a one-state forward pass's layers."""
+    if observation.shape[1:] == policy.observation_space.shape and not is_image_space(policy.observation_space):
+        return th.as_tensor(observation, device=policy.device)
+    return policy.obs_to_tensor(observation)[0]

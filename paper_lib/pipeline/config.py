@@ -1,0 +1,322 @@
+"""params.yaml -> a validated run configuration. Every pipeline input error is raised here.
+
+params.yaml has three parts: `profiles` (named budgets: tiny, cpu, paper), `run` (a copy of
+the active profile, which dvc.yaml's stage matrices read), and `hyperparameters` (the
+paper's per-environment settings). Switch profile with
+
+    python -m paper_lib.pipeline.config use tiny
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from paper_lib.agents.factory import check_algo_settings, check_integer, check_seed, validate_hyperparameters
+from paper_lib.common.io import write_text_atomic
+from paper_lib.methods.groups import check_member_layout
+from paper_lib.methods.networks import METHODS
+from paper_lib.methods.policy import INFERENCE_MODES
+
+PARAMS_FILE = Path("params.yaml")
+HEADER = """\
+# Pipeline parameters. `run` is the active profile (read by dvc.yaml); switch with
+#   python -m paper_lib.pipeline.config use <profile>
+# `hyperparameters` are the paper's (appendix B), keyed by Gymnasium id.
+"""
+
+
+class _PlainDumper(yaml.SafeDumper):
+    """Writes repeated values out in full: params.yaml is read by people, not only by code."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The active profile, validated."""
+
+    profile: str
+    envs: list[str]
+    methods: list[str]
+    seeds: list[int]
+    total_timesteps: int | dict[str, int] | None  # None: each env's own; a mapping: per env (others their own)
+    overrides: dict[str, Any]
+    n_id_states: int
+    n_ood_states: int
+    eval_episodes: int
+    max_episode_steps: int
+    skip_first: int
+    deterministic: bool
+    inference: str
+    n_bootstrap: int
+    protocol: str  # "main" (section 5: ood_configs x steps_per_config, id_episodes x steps_per_config) or "appendix"
+    ood_configs: int
+    id_episodes: int
+    steps_per_config: int
+    n_scoring_seeds: int  # torch seeds each MC Dropout / DropConnect run is scored under
+    hyperparameters: dict[str, dict[str, Any]] = field(repr=False)
+    root: Path = Path(".")
+    atari_head_root: Path | None = None  # a local Atari-HEAD copy: its frames become the Atari OOD states
+
+    @property
+    def results(self) -> Path:
+        return self.root / "results" / self.profile
+
+    def checkpoint_dir(self, env_id: str, method: str, seed: int) -> Path:
+        return self.results / "checkpoints" / env_id / method / f"seed{seed}"
+
+    def dataset_path(self, env_id: str, method: str, seed: int) -> Path:
+        return self.results / "datasets" / env_id / method / f"seed{seed}.npz"
+
+    @property
+    def tables(self) -> Path:
+        return self.results / "tables"
+
+    @property
+    def figures(self) -> Path:
+        return self.results / "figures"
+
+    def runs(self) -> list[tuple[str, str, int]]:
+        return [(e, m, s) for e in self.envs for m in self.methods for s in self.seeds]
+
+    def budget(self, env_id: str) -> int | None:
+        """Training steps of a run in env_id under this profile; None: the env's own (the paper's) budget."""
+        if isinstance(self.total_timesteps, dict):
+            return self.total_timesteps.get(env_id)
+        return self.total_timesteps
+
+    def steps_caption(self) -> str:
+        """The training budget in words, for captions."""
+        if isinstance(self.total_timesteps, dict):
+            changed = ", ".join(f"{env_id} {steps:,}" for env_id, steps in self.total_timesteps.items())
+            return f"the paper's (except {changed})"
+        return f"{self.total_timesteps:,}" if self.total_timesteps else "the paper's"
+
+    def budget_caption(self) -> str:
+        steps = self.steps_caption()
+        return (f"profile '{self.profile}': {len(self.seeds)} seed(s) {self.seeds}, {steps} training steps per run, "
+                f"{self.eval_episodes} evaluation episodes; {self.protocol_caption()}; the paper used 3 seeds")
+
+    def protocol_caption(self) -> str:
+        """Which collection protocol the ID and OOD states come from, for table captions."""
+        skip = f"first {self.skip_first} states of each episode dropped"
+        if self.protocol == "main":
+            return (f"main-text protocol: OOD states from {self.ood_configs} configurations x {self.steps_per_config} "
+                    f"steps, ID states from {self.id_episodes} episodes x {self.steps_per_config} steps, {skip}")
+        return (f"appendix G protocol: {self.n_ood_states} OOD states, a new configuration per episode, and "
+                f"{self.n_id_states} ID states, at most {self.max_episode_steps} steps per episode, {skip}")
+
+
+REQUIRED = ("envs", "methods", "seeds", "total_timesteps", "overrides", "n_id_states", "n_ood_states",
+            "eval_episodes", "max_episode_steps", "skip_first", "deterministic", "inference", "n_bootstrap",
+            "protocol", "ood_configs", "id_episodes", "steps_per_config", "n_scoring_seeds")
+#: State collection protocols: the main text's (section 5) and appendix G's.
+PROTOCOLS = ("main", "appendix")
+#: Settings a profile may leave out (RunConfig gives their defaults).
+OPTIONAL: tuple[str, ...] = ()
+
+
+SECTIONS = ("run", "profiles", "hyperparameters")
+#: Sections other parts read with their own loaders (`study`: paper_lib.study.config); kept as they are.
+OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head")
+POSITIVE = ("n_id_states", "n_ood_states", "eval_episodes", "max_episode_steps", "n_bootstrap", "ood_configs",
+            "id_episodes", "steps_per_config", "n_scoring_seeds")
+
+
+def read_params(path: str | Path = PARAMS_FILE) -> dict[str, Any]:
+    """params.yaml as a dict; a syntax error is one ValueError naming the file and the line."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
+    return parse_params(path.read_text(), path)
+
+
+def parse_params(text: str, path: str | Path = PARAMS_FILE) -> dict[str, Any]:
+    try:
+        params = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"{path}{where}: YAML syntax error ({problem}); fix that line "
+                         "(or restore the file with `git checkout params.yaml`)") from None
+    if not isinstance(params, dict) or not set(SECTIONS) <= set(params):
+        raise ValueError(f"{path} must have the sections 'profiles', 'run' and 'hyperparameters'; "
+                         "restore it with `git checkout params.yaml`")
+    unknown = sorted(set(params) - set(SECTIONS) - set(OPTIONAL_SECTIONS))
+    if unknown:
+        raise ValueError(f"{path}: unknown top-level section(s) {unknown}; params.yaml has only "
+                         f"{list(SECTIONS + OPTIONAL_SECTIONS)}")
+    return params
+
+
+def _check_list(value: Any, name: str, where: str) -> list[Any]:
+    if not isinstance(value, list) or not value:
+        raise ValueError(f"{where}: {name} must be a non-empty list, e.g. [a, b], got {value!r}")
+    if len(set(map(repr, value))) != len(value):
+        raise ValueError(f"{where}: {name} lists an entry twice: {value!r}")
+    return value
+
+
+def validate_profile(profile: Any, where: str, hps: dict[str, Any]) -> None:
+    """Keys, types and ranges of one budget profile (or of `run`)."""
+    if not isinstance(profile, dict):
+        raise ValueError(f"{where} must be a mapping of settings, got {profile!r}")
+    known = set(REQUIRED) | set(OPTIONAL) | {"profile"}
+    unknown = sorted(set(profile) - known)
+    if unknown:
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(known)}")
+    missing = [k for k in REQUIRED if k not in profile]
+    if missing:
+        raise ValueError(f"{where} lacks {missing}; copy them from another profile in params.yaml")
+    for env_id in _check_list(profile["envs"], "envs", where):
+        if env_id not in hps:
+            raise ValueError(f"{where}: unknown env {env_id!r}; params.yaml has hyperparameters for {sorted(hps)}")
+    for method in _check_list(profile["methods"], "methods", where):
+        if method not in METHODS:
+            raise ValueError(f"{where}: unknown method {method!r}; use one of {METHODS}")
+    for seed in _check_list(profile["seeds"], "seeds", where):
+        check_seed(seed, where)
+    budget = profile["total_timesteps"]
+    if isinstance(budget, dict):
+        for env_id, steps in budget.items():
+            if env_id not in hps:
+                raise ValueError(f"{where}: total_timesteps names unknown env {env_id!r}; params.yaml has "
+                                 f"hyperparameters for {sorted(hps)}")
+            check_integer(steps, f"total_timesteps.{env_id}", where, minimum=1)
+    elif budget is not None:
+        check_integer(budget, "total_timesteps", where, minimum=1)
+    overrides = profile["overrides"] if profile["overrides"] is not None else {}
+    check_algo_settings(overrides, where, name="overrides", required=False)
+    for key in POSITIVE:
+        if isinstance(profile[key], bool) or not isinstance(profile[key], int) or profile[key] <= 0:
+            raise ValueError(f"{where}: {key} must be a positive integer, got {profile[key]!r}")
+    check_integer(profile["skip_first"], "skip_first", where, minimum=0)
+    if profile["skip_first"] >= profile["max_episode_steps"]:
+        raise ValueError(f"{where}: skip_first={profile['skip_first']} drops every state of an episode of "
+                         f"max_episode_steps={profile['max_episode_steps']}; make it smaller")
+    if not isinstance(profile["deterministic"], bool):
+        raise ValueError(f"{where}: deterministic must be true or false, got {profile['deterministic']!r}")
+    if profile["inference"] not in INFERENCE_MODES:
+        raise ValueError(f"{where}: unknown inference mode {profile['inference']!r}; use one of {INFERENCE_MODES}")
+    if profile["protocol"] not in PROTOCOLS:
+        raise ValueError(f"{where}: unknown protocol {profile['protocol']!r}; use main (section 5: ood_configs x "
+                         "steps_per_config) or appendix (appendix G: n_ood_states, a new configuration per episode)")
+    if profile["protocol"] == "main" and profile["id_episodes"] < 2:
+        raise ValueError(f"{where}: id_episodes={profile['id_episodes']}: the detectors are fitted on half of the ID "
+                         "episodes and evaluated on the other half, so at least 2 are needed")
+
+
+def validate_params(params: dict[str, Any], path: str | Path = PARAMS_FILE) -> RunConfig:
+    """Every section of params.yaml checked (all profiles, all hyperparameters); the active profile returned."""
+    path = Path(path)
+    run, profiles, hps = params["run"], params["profiles"], params["hyperparameters"]
+    for name, section in (("hyperparameters", hps), ("profiles", profiles), ("run", run)):
+        if not isinstance(section, dict) or not section:
+            raise ValueError(f"{path}: `{name}` must be a non-empty mapping; restore it with `git checkout params.yaml`")
+    for env_id, hp in hps.items():
+        validate_hyperparameters(hp, env_id, where=f"{path}: hyperparameters.{env_id}")
+    for name, profile in profiles.items():
+        validate_profile(profile, f"{path}: profiles.{name}", hps)
+        if isinstance(profile, dict) and "profile" in profile:
+            raise ValueError(f"{path}: profiles.{name} must not set `profile` (only `run` names its profile)")
+    profile = run.get("profile")
+    if profile not in profiles:
+        raise ValueError(f"{path}: unknown profile {profile!r} in `run`; known: {sorted(profiles)}. "
+                         "Fix with `python -m paper_lib.pipeline.config use <profile>`")
+    missing = [k for k in REQUIRED if k not in run]
+    if missing:
+        raise ValueError(f"{path}: `run` lacks {missing}; regenerate it with `python -m paper_lib.pipeline.config use {profile}`")
+    validate_profile(run, f"{path}: run", hps)
+    for env_id in run["envs"]:  # the settings each training stage will get, checked before any stage runs
+        algo = {**hps[env_id]["algo"], **(run["overrides"] or {})}
+        check_algo_settings(algo, f"{path}: run with {env_id}")
+        k = (hps[env_id].get("members") or {}).get("n_members")
+        if k is not None and set(run["methods"]) - {"baseline"}:
+            try:
+                check_member_layout(hps[env_id]["n_envs"], k, algo["batch_size"], algo["n_steps"])
+            except ValueError as err:
+                raise ValueError(f"{path}: run with {env_id}: {err}; change `overrides` or the env's hyperparameters") \
+                    from None
+    return RunConfig(profile=profile, **{k: run[k] for k in REQUIRED}, hyperparameters=hps, root=path.parent,
+                     atari_head_root=atari_head_root(params.get("atari_head"), path))
+
+
+def atari_head_root(section: Any, path: str | Path = PARAMS_FILE) -> Path | None:
+    """The `atari_head.root` of params.yaml: None (the default: game-state OOD sources), else the folder of a
+    local Atari-HEAD copy, relative to params.yaml's folder unless absolute. Whether it holds the games is
+    checked where its frames are read (`paper_lib.ood.atari_head`), so a wrong path stops only Atari collection."""
+    path = Path(path)
+    if section is None:
+        return None
+    if not isinstance(section, dict) or set(section) != {"root"}:
+        raise ValueError(f"{path}: `atari_head` must be a mapping with the one key `root` (null, or the folder of a "
+                         f"local Atari-HEAD copy), got {section!r}")
+    root = section["root"]
+    if root is None:
+        return None
+    if not isinstance(root, str) or not root.strip():
+        raise ValueError(f"{path}: atari_head.root must be null or a folder path as a string, got {root!r}")
+    root = Path(root).expanduser()
+    return root if root.is_absolute() else path.parent / root
+
+
+def load_run_config(path: str | Path = PARAMS_FILE) -> RunConfig:
+    """The active profile from params.yaml, after every section was checked."""
+    return validate_params(read_params(path), path)
+
+
+def _with_run_section(text: str, run: dict[str, Any]) -> str:
+    """`text` with its top-level `run:` block replaced by `run`; every other line (comments too) kept as it is."""
+    lines = text.splitlines(keepends=True)
+    starts = [i for i, line in enumerate(lines) if line.startswith("run:")]
+    block = yaml.dump({"run": run}, Dumper=_PlainDumper, sort_keys=False, default_flow_style=None, width=110)
+    if not starts:
+        return HEADER + block + text
+    start = starts[0]
+    end = next((i for i in range(start + 1, len(lines))
+                if lines[i].strip() and not lines[i][0].isspace()), len(lines))
+    return "".join(lines[:start]) + block + "".join(lines[end:])
+
+
+def use_profile(name: str, path: str | Path = PARAMS_FILE) -> None:
+    """Make profile `name` the active one (rewrites the `run` section)."""
+    path = Path(path)
+    params = read_params(path)
+    if name not in params["profiles"]:
+        raise ValueError(f"{path}: unknown profile {name!r}; known: {sorted(params['profiles'])}")
+    if not isinstance(params["profiles"][name], dict):
+        raise ValueError(f"{path}: profiles.{name} must be a mapping of settings; {path} was left unchanged")
+    run = {"profile": name, **copy.deepcopy(params["profiles"][name])}
+    text = _with_run_section(path.read_text(), run)
+    try:  # the file as it would be written, checked before anything is written
+        validate_params(parse_params(text, path), path)
+    except ValueError as err:
+        raise ValueError(f"{err} ({path} was left unchanged)") from None
+    write_text_atomic(path, text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="Switch the pipeline's budget profile.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    use = sub.add_parser("use", help="make a profile active")
+    use.add_argument("profile")
+    sub.add_parser("show", help="print the active profile")
+    args = parser.parse_args()
+    try:
+        if args.command == "use":
+            use_profile(args.profile)
+        print(load_run_config())
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+
+
+if __name__ == "__main__":
+    main()

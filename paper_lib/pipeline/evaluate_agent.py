@@ -1,0 +1,199 @@
+"""Bring your own agent: the benchmark's OOD metrics for any SB3 PPO, A2C or TRPO checkpoint.
+
+    python -m paper_lib.pipeline.evaluate_agent path/to/model.zip HalfCheetah-v5 [--vecnormalize vecnormalize.pkl] [--out DIR]
+
+The checkpoint may hold a member policy (Masksembles, MC Dropout, MC DropConnect, Ensemble:
+every member measure is scored) or a plain `MlpPolicy` / `CnnPolicy` (the member-free
+detectors, and `max_prob` / `entropy` for discrete actions). The agent acts in the default
+env for the ID states and in the benchmark's perturbed envs (MuJoCo physics, Atari game
+states) for the OOD states, with the main text's protocol (configurations x steps, ID
+episodes x steps) at a budget you choose; a noise OOD set is made from the ID states. The
+result is one row per (OOD set, measure or detector): AUROC with a cluster-bootstrap 95% CI,
+AUPR-in/out, FPR@95 (OpenOOD's: ID states flagged when 95% of OOD states are caught) and
+detection error, OOD positive.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.vec_env import VecNormalize
+
+from paper_lib.agents.checkpoints import zip_algorithm
+from paper_lib.agents.envs import is_atari, make_env
+from paper_lib.agents.factory import ALGORITHMS
+from paper_lib.ood.atari import ATARI_GAMES
+from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
+from paper_lib.ood.datasets import StateDataset, concat
+from paper_lib.ood.mujoco import SUPPORTED_ENVS
+from paper_lib.reporting.tables import save_table
+from paper_lib.scoring.ood_scores import METRICS_NOTE, RunScores, score_run
+
+SUPPORTED = (*SUPPORTED_ENVS, *(f"{game}NoFrameskip-v4" for game in ATARI_GAMES))
+
+
+@dataclass(frozen=True)
+class Budget:
+    """How many states: the main text's protocol at a size the caller picks (defaults: the paper's)."""
+
+    configs: int = 50
+    steps_per_config: int = 100
+    id_episodes: int = 20
+    skip_first: int = 10
+    max_episode_steps: int = 500
+    n_bootstrap: int = 1000
+    n_scoring_seeds: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("configs", "steps_per_config", "id_episodes", "max_episode_steps", "n_bootstrap",
+                     "n_scoring_seeds"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name}={value!r}: need a positive integer.")
+        if self.id_episodes < 2:
+            raise ValueError(f"id_episodes={self.id_episodes}: the detectors are fitted on half of the ID episodes "
+                             "and evaluated on the other half; give at least 2.")
+        if not 0 <= self.skip_first < self.max_episode_steps:
+            raise ValueError(f"skip_first={self.skip_first!r}, max_episode_steps={self.max_episode_steps!r}: need "
+                             "0 <= skip_first < max_episode_steps.")
+
+    def caption(self) -> str:
+        return (f"main-text protocol at this budget: OOD states from {self.configs} configurations x "
+                f"{self.steps_per_config} steps, ID states from {self.id_episodes} episodes x {self.steps_per_config} "
+                f"steps, first {self.skip_first} states of each episode dropped")
+
+
+@dataclass
+class AgentEvaluation:
+    metrics: pd.DataFrame  # one row per (ood_set, measure or detector)
+    dataset: StateDataset  # the collected ID and OOD states
+    scores: RunScores  # per-state scores, ROC points and bootstrap replicates
+
+
+def load_agent(model_path: str | Path, algo: str | None = None, device: str = "cpu") -> BaseAlgorithm:
+    """Any SB3 PPO / A2C / TRPO zip; the algorithm is read from the zip's settings unless given."""
+    path = Path(model_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no model at {path}: give the .zip that model.save() wrote")
+    if algo is None:
+        try:
+            data, _, _ = load_from_zip_file(path, device=device, load_data=True)
+        except Exception as err:  # not a zip, or not SB3's
+            raise ValueError(f"{path} is not an SB3 model zip ({type(err).__name__}: {err})") from err
+        algo = zip_algorithm(data or {})
+        if algo is None:
+            raise ValueError(f"{path}: cannot tell which algorithm saved it; pass algo= one of {sorted(ALGORITHMS)}")
+    if algo not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algo!r}; use one of {sorted(ALGORITHMS)}")
+    try:
+        return ALGORITHMS[algo].load(path, device=device)
+    except Exception as err:
+        raise ValueError(f"cannot load {path} as {algo} ({type(err).__name__}: {err})") from err
+
+
+def load_vecnormalize(path: str | Path, env_id: str, seed: int) -> VecNormalize:
+    """The observation normalizer saved with the agent, frozen (as SB3's docs advise for evaluation)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no VecNormalize at {path}: give the .pkl that VecNormalize.save() wrote")
+    try:
+        venv = VecNormalize.load(str(path), make_env(env_id, 1, seed))
+    except Exception as err:
+        raise ValueError(f"cannot load {path} as a VecNormalize for {env_id} ({type(err).__name__}: {err})") from err
+    venv.training, venv.norm_reward = False, False
+    return venv
+
+
+def evaluate_agent(model: BaseAlgorithm | str | Path, env_id: str, *,
+                   vecnormalize: VecNormalize | str | Path | None = None, budget: Budget = Budget(), seed: int = 0,
+                   deterministic: bool = False, algo: str | None = None,
+                   out_dir: str | Path | None = None) -> AgentEvaluation:
+    """Collect ID and OOD states with the agent and score them with every measure and detector it has.
+
+    ``model`` is an SB3 model or the path of its zip; ``vecnormalize`` the VecNormalize (or its
+    .pkl) it was trained with, if it was. Actions are sampled unless ``deterministic``; a member
+    policy combines its members by vote. With ``out_dir``, the dataset, the metrics table
+    (csv, md, tex) and the ROC points are written there.
+    """
+    if env_id not in SUPPORTED:
+        raise ValueError(f"no OOD states exist for {env_id!r}: the benchmark perturbs {list(SUPPORTED)}")
+    if not isinstance(budget, Budget):
+        raise TypeError(f"budget must be a Budget (e.g. Budget(configs=10, steps_per_config=50)), got "
+                        f"{type(budget).__name__}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r}: need a non-negative int.")
+    agent = model if isinstance(model, BaseAlgorithm) else load_agent(model, algo)
+    if vecnormalize is not None and not isinstance(vecnormalize, VecNormalize):
+        vecnormalize = load_vecnormalize(vecnormalize, env_id, seed)
+    mode = ActionMode(deterministic=deterministic, inference="vote")
+    common = dict(action_mode=mode, max_episode_steps=budget.max_episode_steps, skip_first=budget.skip_first)
+    with th.random.fork_rng(devices=[]):
+        id_states = collect_id_states(agent, env_id, seed=2 * seed + 1, episodes=budget.id_episodes,
+                                      steps_per_episode=budget.steps_per_config, vecnormalize=vecnormalize, **common)
+        if is_atari(env_id):
+            ood_states = collect_atari_ood_states(agent, env_id, seed=2 * seed + 2, configs=budget.configs,
+                                                  steps_per_config=budget.steps_per_config, **common)
+        else:
+            ood_states = collect_mujoco_ood_states(agent, env_id, seed=2 * seed + 2, configs=budget.configs,
+                                                   steps_per_config=budget.steps_per_config,
+                                                   vecnormalize=vecnormalize, **common)
+        dataset = concat(id_states, ood_states)
+        scores = score_run(agent, dataset, seed, budget.n_bootstrap, n_scoring_seeds=budget.n_scoring_seeds,
+                           vecnormalize=vecnormalize)
+    metrics = scores.metrics.assign(env=env_id)
+    if out_dir is not None:
+        out = Path(out_dir)
+        dataset.save(out / "dataset.npz")
+        actions = "deterministic" if deterministic else "sampled"
+        save_table(metrics, out / "ood_metrics",
+                   caption=f"OOD detection metrics of {type(agent).__name__} ({type(agent.policy).__name__}) on "
+                           f"{env_id} ({budget.caption()}; {actions} actions; seed {seed}; {METRICS_NOTE}).")
+        scores.roc.to_csv(out / "roc.csv", index=False)
+    return AgentEvaluation(metrics, dataset, scores)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="OOD metrics of any SB3 PPO/A2C/TRPO checkpoint on the paper's "
+                                                 "benchmark (perturbed and noise OOD states).")
+    parser.add_argument("model", help="the model's .zip (SB3 model.save)")
+    parser.add_argument("env_id", help=f"one of {', '.join(SUPPORTED)}")
+    parser.add_argument("--vecnormalize", help="the VecNormalize .pkl the agent was trained with, if any")
+    parser.add_argument("--out", help="folder for dataset.npz, ood_metrics.{csv,md,tex} and roc.csv")
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS), help="only if it cannot be read from the zip")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--deterministic", action="store_true", help="act with the mean / argmax action")
+    defaults = Budget()
+    parser.add_argument("--configs", type=int, default=defaults.configs, help="OOD configurations")
+    parser.add_argument("--steps", type=int, default=defaults.steps_per_config,
+                        help="kept states per configuration and per ID episode")
+    parser.add_argument("--id-episodes", type=int, default=defaults.id_episodes)
+    parser.add_argument("--skip-first", type=int, default=defaults.skip_first)
+    parser.add_argument("--max-episode-steps", type=int, default=defaults.max_episode_steps)
+    parser.add_argument("--bootstrap", type=int, default=defaults.n_bootstrap, help="bootstrap replicates")
+    parser.add_argument("--scoring-seeds", type=int, default=defaults.n_scoring_seeds,
+                        help="torch seeds an MC Dropout / DropConnect policy is scored under")
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+    try:
+        budget = Budget(args.configs, args.steps, args.id_episodes, args.skip_first, args.max_episode_steps,
+                        args.bootstrap, args.scoring_seeds)
+        result = evaluate_agent(args.model, args.env_id, vecnormalize=args.vecnormalize, budget=budget, seed=args.seed,
+                                deterministic=args.deterministic, algo=args.algo, out_dir=args.out)
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        parser.exit(2, f"error: {err}\n")
+    table = result.metrics.pivot_table(index="measure", columns="ood_set", values="auroc", sort=False)
+    print(f"AUROC (OOD positive; {budget.caption()}):")
+    print(table.round(3).to_string())
+    if args.out:
+        print(f"written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,194 @@
+"""The README's commands: rebuild every table and figure, re-collect, or retrain (the last two are long).
+
+    python -m paper_lib.pipeline.reproduce               # make reproduce: never trains, never collects
+    python -m paper_lib.pipeline.reproduce --recollect   # make recollect: ID/OOD states and reward episodes again, then the above
+    python -m paper_lib.pipeline.reproduce --retrain     # make retrain: plain `dvc repro`, trains missing or changed runs (hours)
+
+The default command runs only the stages that read committed files: each run's `score` stage
+and the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments where DVC finds them stale (their inputs or
+code changed), and every table and figure stage, forced, for the runs that exist. Runs of the profile that lack a checkpoint,
+dataset or evaluation are listed (printed and in results/<profile>/runs.md), never made. It
+calls DVC with `--single-item`, so no upstream stage (train, collect, evaluate) can run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.agents.envs import MUJOCO_ENVS
+from paper_lib.pipeline.status import (
+    available_runs,
+    has,
+    missing_lines,
+    stage_suffix,
+    stale_lines,
+    stale_stages,
+    status_table,
+    summary,
+    write_status,
+)
+
+#: Table and figure stages in dependency order (paper_vs_us reads what rewards and ood write).
+TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
+                "example_states", "quickstart", "study", "scaling", "ensembles")
+#: Stages that replay or rescore committed checkpoints (slow as the matrix grows): run only where DVC finds them stale.
+EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
+QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
+#: The two parts of notebook 11; each is scored and tabled as soon as it has runs, without waiting for the other.
+ENSEMBLE_PARTS = ("independent", "own")
+ENSEMBLE_FOLDERS = ("checkpoints", "datasets", "evaluations", "scores")
+
+
+def _has_files(folder: Path) -> bool:
+    return folder.is_dir() and any(path.is_file() for path in folder.rglob("*"))
+
+
+def make_ensemble_folders(cfg: RunConfig) -> None:
+    """Create the ensembles stages' declared folders (git keeps no empty folder).
+
+    DVC refuses a stage whose dependency is missing, so with only `own` runs trained the absent `independent`
+    folders would block both stages; an empty folder hashes the same on every clone.
+    """
+    for part in ENSEMBLE_PARTS:
+        for kind in ENSEMBLE_FOLDERS:
+            (cfg.results / part / kind).mkdir(parents=True, exist_ok=True)
+
+
+def _env() -> dict[str, str]:
+    """The environment for DVC: this interpreter's bin/ first, so stage commands find its python, papermill, dvc."""
+    bin_dir = str(Path(sys.executable).parent)
+    return {**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", ""), "DVC_NO_ANALYTICS": "1"}
+
+
+def _dvc_binary() -> str:
+    local = Path(sys.executable).parent / "dvc"
+    return str(local) if local.exists() else "dvc"
+
+
+def _write_status(cfg: RunConfig) -> None:
+    """runs.md, with the stages `dvc status` finds stale (checkpoints trained with older settings, ...)."""
+    stale = stale_stages(_dvc_binary(), _env())
+    path = write_status(cfg, stale)
+    for line in stale_lines(status_table(cfg, stale)) if stale is not None else []:
+        print(f"  note: {line}")
+    print(f"run status: {path}")
+
+
+def _dvc(args: list[str]) -> None:
+    command = [_dvc_binary(), *args]
+    print("+ dvc " + " ".join(args if len(args) < 12 else [*args[:11], f"... ({len(args) - 11} more)"]), flush=True)
+    done = subprocess.run(command, env=_env(), check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"error: `dvc {args[0]}` failed (exit status {done.returncode}); its output is above")
+
+
+def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
+    """(stages to run, lines saying why the others cannot run yet) for the runs that exist."""
+    scored = available_runs(cfg, "scores")
+    ready = {
+        "rewards": bool(available_runs(cfg, "evaluation")),
+        "ood": bool(scored),
+        "uncertainty_over_time": any(run[1] != "baseline" for run in scored),
+        "training_and_perturbations": bool(available_runs(cfg, "checkpoint")),
+        "example_states": True,
+        "quickstart": has(cfg, (*QUICKSTART_RUN, 0), "checkpoint"),
+    }
+    ready["paper_vs_us"] = ready["rewards"] and ready["ood"]
+    results = cfg.results
+    ready["study"] = (results / "studies" / "studies.db").is_file()
+    ready["scaling"] = (results / "scaling").is_dir()
+    ready["ensembles"] = (results / "scores").is_dir() and any(_has_files(results / part / "scores")
+                                                                for part in ENSEMBLE_PARTS)
+    why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
+           "uncertainty_over_time": "no member-method run has scores",
+           "training_and_perturbations": "no run has a checkpoint", "paper_vs_us": "it needs both rewards and ood",
+           "quickstart": f"its agent {' '.join(QUICKSTART_RUN)} seed 0 has no checkpoint",
+           "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
+           "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
+           "ensembles": "it needs scored independent ensembles or own runs, and scored shared runs "
+                        "(`python -m paper_lib.experiments.ensembles queue`)"}
+    return [s for s in TABLE_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in TABLE_STAGES if not ready[s]]
+
+
+def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
+    """(experiment stages whose inputs exist, lines saying why the others cannot run yet)."""
+    results = cfg.results
+    mujoco_members = [run for run in available_runs(cfg, "checkpoint")
+                      if run[0] in MUJOCO_ENVS and run[1] != "baseline"]
+    ready = {"guard": bool(available_runs(cfg, "checkpoint")),
+             "spawn": bool(mujoco_members),
+             "value_level": bool(available_runs(cfg, "checkpoint", "dataset")),
+             "ensembles_scores": any(_has_files(results / part / "checkpoints") for part in ENSEMBLE_PARTS)}
+    why = {"guard": "no run has a checkpoint", "spawn": "no MuJoCo member-method run has a checkpoint",
+           "value_level": "no run has a checkpoint and a dataset",
+           "ensembles_scores": "no independent members or own runs trained yet (`python -m paper_lib.experiments.ensembles queue`)"}
+    return [s for s in EXPERIMENT_STAGES if ready[s]], [f"{s}: skipped, {why[s]}" for s in EXPERIMENT_STAGES
+                                                        if not ready[s]]
+
+
+def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
+    """Score the runs with a dataset where stale (all of them with `rescore`), then every table and figure, forced."""
+    print(summary(cfg))
+    for line in missing_lines(cfg, artifacts=("checkpoint", "dataset", "evaluation")):  # scores are made below
+        print(f"  missing (not made here): {line}")
+    runs = available_runs(cfg, "checkpoint", "dataset")
+    if runs:
+        _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
+              *[f"score@{stage_suffix(*run)}" for run in runs]])
+    experiments, skipped = experiment_stages(cfg)
+    for line in skipped:
+        print(f"  {line}")
+    if "ensembles_scores" in experiments:
+        make_ensemble_folders(cfg)
+    if experiments:
+        _dvc(["repro", "--single-item", *experiments])
+    stages, skipped = table_stages(cfg)
+    for line in skipped:
+        print(f"  {line}")
+    _dvc(["repro", "--single-item", "--force", *stages])
+    _write_status(cfg)
+
+
+def recollect(cfg: RunConfig) -> None:
+    """ID/OOD states and evaluation episodes again for every run with a checkpoint, then `reproduce`."""
+    runs = available_runs(cfg, "checkpoint")
+    if runs:
+        _dvc(["repro", "--single-item", "--force",
+              *[f"{stage}@{stage_suffix(*run)}" for run in runs for stage in ("collect", "evaluate")]])
+    reproduce(cfg)
+
+
+def retrain(cfg: RunConfig) -> None:
+    """Plain `dvc repro`: trains every missing or changed run of the profile, then everything downstream."""
+    print(f"{summary(cfg)}\nretraining: `dvc repro` trains every run whose checkpoint is missing or whose "
+          "hyperparameters changed; at the paper's budget that is hours per run")
+    _dvc(["repro"])
+    _write_status(cfg)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--recollect", action="store_true", help="collect states and evaluation episodes again (long)")
+    mode.add_argument("--retrain", action="store_true", help="train missing or changed runs (hours), then everything")
+    mode.add_argument("--rescore", action="store_true", help="score every run again even where DVC finds it up to date")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_run_config()  # dvc.yaml reads params.yaml too
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+    if args.retrain:
+        retrain(cfg)
+    elif args.recollect:
+        recollect(cfg)
+    else:
+        reproduce(cfg, rescore=args.rescore)
+
+
+if __name__ == "__main__":
+    main()

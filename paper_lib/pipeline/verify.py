@@ -1,0 +1,193 @@
+"""Do the committed per-run results reproduce on this machine? Recompute them aside and compare, file by file.
+
+Same seed, same machine: same numbers. `python -m paper_lib.pipeline.verify` runs the `score` stage (and with
+`--stages evaluate score` the `evaluate` stage) of committed runs again, from their committed checkpoints
+and datasets and with the current code and params.yaml, into a scratch folder, and compares every file
+it writes with the committed one. Nothing under results/ is written. A file is `identical` (same bytes),
+`same values` (the same table written otherwise), `numbers differ` (same table, some numbers not equal: the largest absolute difference and its column are
+reported; at float32 precision, ~1e-7, this is what another CPU or BLAS thread count does), or `differs`
+(another shape, columns or text).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from paper_lib.common.provenance import machine
+from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.run_results import evaluate_run, evaluation_path, score_files, score_run_files, scores_dir
+from paper_lib.pipeline.status import Run, available_runs
+
+STAGES = ("evaluate", "score")
+#: What each stage needs committed to be recomputed and compared.
+#: Results that count as reproduced.
+PASSING = ("identical", "same values")
+NEEDS = {"evaluate": ("checkpoint", "evaluation"), "score": ("checkpoint", "dataset", "scores")}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How a recomputed file compares with the committed one."""
+
+    result: str  # "identical" (bytes), "same values" (written otherwise), "numbers differ", "differs", "missing"
+    max_abs_diff: float = 0.0
+    column: str = ""  # where the largest difference is (CSV column, or "array")
+    note: str = ""
+
+
+def compare_files(committed: Path, fresh: Path) -> Comparison:
+    """Byte equality first; else, for CSV and .npy, the largest numeric difference (NaN equals NaN)."""
+    if not committed.is_file() or not fresh.is_file():
+        return Comparison("missing", note=f"{committed if not committed.is_file() else fresh} does not exist")
+    if committed.read_bytes() == fresh.read_bytes():
+        return Comparison("identical")
+    if committed.suffix == ".npy":
+        a, b = np.load(committed), np.load(fresh)
+        if a.shape != b.shape:
+            return Comparison("differs", note=f"shape {a.shape} committed, {b.shape} recomputed")
+        return _numbers(a.astype(np.float64), b.astype(np.float64), "array")
+    if committed.suffix == ".csv":
+        return _compare_tables(pd.read_csv(committed), pd.read_csv(fresh))
+    return Comparison("differs", note="not a CSV or .npy file, and its bytes differ")
+
+
+def _compare_tables(a: pd.DataFrame, b: pd.DataFrame) -> Comparison:
+    if list(a.columns) != list(b.columns) or a.shape != b.shape:
+        return Comparison("differs", note=f"columns or shape differ: {a.shape} committed, {b.shape} recomputed")
+    largest = Comparison("same values")
+    for column in a.columns:
+        x, y = a[column], b[column]
+        if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
+            found = _numbers(x.to_numpy(np.float64), y.to_numpy(np.float64), str(column))
+            if found.result == "differs":
+                return found
+            if found.max_abs_diff > largest.max_abs_diff:
+                largest = found
+        elif not x.astype(str).equals(y.astype(str)):
+            row = int(np.flatnonzero(x.astype(str).to_numpy() != y.astype(str).to_numpy())[0])
+            return Comparison("differs", column=str(column), note=f"row {row}: {x.iloc[row]!r} committed, "
+                                                                   f"{y.iloc[row]!r} recomputed")
+    return largest
+
+
+def _numbers(a: np.ndarray, b: np.ndarray, column: str) -> Comparison:
+    nan_a, nan_b = np.isnan(a), np.isnan(b)
+    if not np.array_equal(nan_a, nan_b):
+        return Comparison("differs", column=column, note="NaN in one file where the other has a number")
+    diff = np.abs(a[~nan_a] - b[~nan_b])
+    largest = float(diff.max()) if diff.size else 0.0
+    return Comparison("numbers differ", largest, column) if largest > 0 else Comparison("same values")
+
+
+def _scratch_config(cfg: RunConfig, scratch: Path, run: Run) -> RunConfig:
+    """A config rooted in `scratch` whose checkpoint and dataset of `run` are links to the committed ones."""
+    aside = dataclasses.replace(cfg, root=scratch)
+    for committed, linked in ((cfg.checkpoint_dir(*run), aside.checkpoint_dir(*run)),
+                              (cfg.dataset_path(*run), aside.dataset_path(*run))):
+        if committed.exists() and not linked.exists():
+            linked.parent.mkdir(parents=True, exist_ok=True)
+            linked.symlink_to(committed.resolve(), target_is_directory=committed.is_dir())
+    return aside
+
+
+def verify_run(cfg: RunConfig, run: Run, stages: tuple[str, ...] = ("score",)) -> pd.DataFrame:
+    """Recompute `stages` of one committed run aside and compare each file: one row per file."""
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="verify-") as tmp:
+        aside = _scratch_config(cfg, Path(tmp), run)
+        for stage in stages:
+            started = time.perf_counter()
+            if stage == "evaluate":
+                evaluate_run(aside, *run)
+                pairs = [(evaluation_path(cfg, *run), evaluation_path(aside, *run))]
+            else:
+                score_run_files(aside, *run)
+                pairs = [(scores_dir(cfg, *run) / name, scores_dir(aside, *run) / name) for name in score_files(run[0])]
+            seconds = time.perf_counter() - started
+            for committed, fresh in pairs:
+                found = compare_files(committed, fresh)
+                rows.append({"env": run[0], "method": run[1], "seed": run[2], "stage": stage, "file": committed.name,
+                             **dataclasses.asdict(found), "seconds": round(seconds, 1)})
+    return pd.DataFrame(rows)
+
+
+def runs_to_verify(cfg: RunConfig, stages: tuple[str, ...], requested: list[Run] | None = None,
+                   every: bool = False) -> list[Run]:
+    """The requested runs (each must have what its stages compare), every such run, or the first of each env."""
+    needs = tuple(dict.fromkeys(n for s in stages for n in NEEDS[s]))
+    ready = available_runs(cfg, *needs)
+    if requested:
+        missing = [r for r in requested if r not in ready]
+        if missing:
+            env, method, seed = missing[0]
+            raise ValueError(f"{env} {method} seed {seed} has no committed {' + '.join(needs)} in profile "
+                             f"{cfg.profile!r} to compare with; runs that have them: "
+                             f"{', '.join(f'{e} {m} {s}' for e, m, s in ready[:8]) or 'none'}"
+                             f"{' ...' if len(ready) > 8 else ''}")
+        return list(requested)
+    if every:
+        return ready
+    first: dict[str, Run] = {}
+    for run in ready:
+        first.setdefault(run[0], run)
+    return list(first.values())
+
+
+def _seed(text: str) -> int:
+    if not text.isdigit():
+        raise ValueError(f"--run takes ENV METHOD SEED with an integer seed, e.g. --run HalfCheetah-v5 masksembles 0; "
+                         f"got seed {text!r}")
+    return int(text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", nargs=3, action="append", metavar=("ENV", "METHOD", "SEED"),
+                        help="a committed run to verify (repeatable); default: the first complete run of each env")
+    parser.add_argument("--all", action="store_true", help="every committed run (slow: minutes per run)")
+    parser.add_argument("--stages", nargs="+", choices=STAGES, default=["score"],
+                        help="which per-run stages to recompute (default: score; evaluate plays every episode again)")
+    parser.add_argument("--params", default="params.yaml")
+    args = parser.parse_args(argv)
+    stages = tuple(s for s in STAGES if s in args.stages)
+    try:
+        cfg = load_run_config(args.params)
+        requested = [(env, method, _seed(seed)) for env, method, seed in args.run or []]
+        runs = runs_to_verify(cfg, stages, requested, args.all)
+    except ValueError as err:
+        parser.exit(2, f"error: {err}\n")
+    here = machine()
+    print(f"recomputing on {here['cpu']} ({here['cpus']} CPUs; {here['simd'] or 'no AVX'}), {here['platform']}")
+    frames = []
+    for run in runs:
+        frame = verify_run(cfg, run, stages)
+        frames.append(frame)
+        worst = frame.sort_values("max_abs_diff").iloc[-1]
+        print(f"{run[0]} {run[1]} seed {run[2]}: {frame.result.isin(PASSING).sum()} of {len(frame)} files the same"
+              + ("" if worst.max_abs_diff == 0 else f" (largest difference {worst.max_abs_diff:.3g} in "
+                 f"{worst.file}, {worst.column})"), flush=True)
+    table = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    different = table[~table.result.isin(PASSING)] if len(table) else table
+    print(f"\n{len(table) - len(different)} of {len(table)} files the same as the committed ones "
+          f"({len(runs)} run(s), stages {', '.join(stages)}).")
+    if len(different):
+        print(different.drop(columns=["seconds"]).to_markdown(index=False))
+        print("\nNumbers that differ at float32 precision (relative ~1e-7), and ROC points or rank metrics that one "
+              "flipped pair of nearly tied states moves, usually mean another CPU or BLAS thread count than the "
+              "committed files were made with; larger differences, changed code, params.yaml or packages "
+              "(`dvc status` lists stale stages). Reward episodes go their own way from the first differing bit "
+              "(physics and games amplify it), so on another CPU their rewards differ by up to the episodes' spread.")
+    return 1 if len(different) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

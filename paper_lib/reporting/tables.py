@@ -1,0 +1,179 @@
+"""Result tables in three formats: CSV (for code), Markdown (for the README) and LaTeX (for the paper).
+
+All three are written atomically from the same DataFrame, so they never disagree
+and a crash never leaves a stale or half-written table.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from paper_lib.common.frames import require_columns
+from paper_lib.common.io import write_text_atomic
+
+PLUS_MINUS = "\u00b1"  # "±"
+
+
+def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
+    """Append ``suffix`` to the stem (not with_suffix: stems like 'roc.value' keep their dot)."""
+    return Path(f"{os.fspath(stem)}{suffix}")
+
+
+def _has_default_index(df: pd.DataFrame) -> bool:
+    """A plain 0..n-1 index carries no information and is left out of the written tables."""
+    return isinstance(df.index, pd.RangeIndex) and df.index.name is None and df.index.start == 0 and df.index.step == 1
+
+
+def _format_cells(df: pd.DataFrame, float_format: str) -> pd.DataFrame:
+    """Format float cells with ``float_format`` ("%.3f"); other cells become str(cell)."""
+
+    def fmt(x: object) -> str:
+        if isinstance(x, (float, np.floating)):
+            return "NaN" if np.isnan(x) else float_format % x
+        return str(x)
+
+    return df.map(fmt)
+
+
+def _markdown_table(df: pd.DataFrame, right: list[bool]) -> str:
+    """Plain pipe table, used when tabulate (pandas' Markdown backend) is not installed."""
+    header = [str(c) for c in df.columns]
+    rule = ["---:" if r else ":---" for r in right]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(rule) + "|"]
+    lines += ["| " + " | ".join(str(x) for x in row) + " |" for row in df.itertuples(index=False)]
+    return "\n".join(lines)
+
+
+def to_markdown(df: pd.DataFrame, right: list[bool]) -> str:
+    """Markdown table of an all-string frame; ``right[i]`` right-aligns column i (numbers).
+
+    Uses tabulate (pandas' backend) when installed and our own writer otherwise.
+    """
+
+    def cell(x: object) -> str:
+        return str(x).replace("|", "\\|").replace("\n", " ")
+
+    safe = df.map(cell).rename(columns=cell)
+    try:
+        import tabulate  # noqa: F401  (only probing that pandas' backend exists)
+    except ImportError:
+        return _markdown_table(safe, right)
+    # disable_numparse: cells are already formatted; tabulate must not re-round them.
+    colalign = ["right" if r else "left" for r in right]
+    return safe.to_markdown(index=False, disable_numparse=True, colalign=colalign)
+
+
+def _latex_escape(text: str) -> str:
+    """Escape LaTeX special characters so plain-text captions and cells compile."""
+    repl = {
+        "\\": r"\textbackslash{}",
+        "&": r"\&",
+        "%": r"\%",
+        "$": r"\$",
+        "#": r"\#",
+        "_": r"\_",
+        "{": r"\{",
+        "}": r"\}",
+        "~": r"\textasciitilde{}",
+        "^": r"\textasciicircum{}",
+        "|": r"\textbar{}",
+    }
+    return "".join(repl.get(ch, ch) for ch in text)
+
+
+def to_latex(df: pd.DataFrame, caption: str, right: list[bool], label: str | None = None) -> str:
+    """Booktabs LaTeX table (needs \\usepackage{booktabs}); cells, headers and caption are escaped."""
+
+    def tex(x: object) -> str:
+        return _latex_escape(str(x)).replace(PLUS_MINUS, r"$\pm$")
+
+    safe = df.map(tex).rename(columns=tex)
+    styler = safe.style.hide(axis="index")
+    column_format = "".join("r" if r else "l" for r in right)
+    return styler.to_latex(
+        hrules=True, caption=tex(caption), label=label, position_float="centering", column_format=column_format
+    )
+
+
+def save_table(
+    df: pd.DataFrame,
+    stem: str | os.PathLike[str],
+    caption: str,
+    float_format: str = "%.3f",
+    label: str | None = None,
+) -> dict[str, Path]:
+    """Write ``stem``.csv, .md and .tex atomically; return their paths keyed by format.
+
+    The CSV keeps full float precision (it is what code reads back); Markdown and
+    LaTeX show floats with ``float_format``. ``caption`` is plain text: it is the
+    first line of the .md and is LaTeX-escaped into the .tex caption. A non-default
+    index is written as leading column(s).
+    """
+    if not isinstance(df, pd.DataFrame) or df.shape[1] == 0:
+        raise ValueError(f"save_table: expected a DataFrame with at least one column, got {type(df).__name__}.")
+    if not isinstance(caption, str) or not caption.strip():
+        raise ValueError("save_table: caption must be a non-empty string; every table states what it shows.")
+    try:
+        float_format % 1.0
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"save_table: float_format must be a %-style format such as '%.3f', got {float_format!r}."
+        ) from None
+    flat = df.copy() if _has_default_index(df) else df.reset_index()
+    flat.columns = [str(c) for c in flat.columns]
+    shown = _format_cells(flat, float_format)
+    right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) for c in flat.columns]
+    paths = {fmt: _stem_path(stem, f".{fmt}") for fmt in ("csv", "md", "tex")}
+    write_text_atomic(paths["csv"], flat.to_csv(index=False, lineterminator="\n"))
+    write_text_atomic(paths["md"], f"{caption.strip()}\n\n{to_markdown(shown, right)}\n")
+    write_text_atomic(paths["tex"], to_latex(shown, caption.strip(), right, label))
+    return paths
+
+
+def mean_std_values(df: pd.DataFrame, index: str, columns: str, value: str) -> pd.DataFrame:
+    """Mean, sample std (ddof=1) and count of ``value`` over the remaining rows (seeds).
+
+    Returns a frame indexed by ``index`` with MultiIndex columns (stat, ``columns``),
+    stat in {"mean", "std", "n"}; std is NaN where only one seed exists.
+    """
+    require_columns(df, [index, columns, value], "mean_std_values")
+    vals = pd.to_numeric(df[value], errors="coerce")
+    if vals.isna().any():
+        bad = df.loc[vals.isna(), [index, columns, value]].head(3).to_dict("records")
+        raise ValueError(
+            f"mean_std_values: column {value!r} has missing or non-numeric values, e.g. {bad}; fix them first."
+        )
+    grouped = df.assign(**{value: vals}).groupby([index, columns], sort=False)[value]
+    stats = grouped.agg(mean="mean", std="std", n="count")
+    wide = stats.unstack(columns)
+    wide.columns = wide.columns.set_names(["stat", columns])
+    # groupby(sort=False)/unstack sorts the columns; restore first-appearance order.
+    order = pd.unique(df[columns])
+    return wide.reindex(columns=pd.MultiIndex.from_product([["mean", "std", "n"], order], names=["stat", columns]))
+
+
+def mean_std_table(
+    df: pd.DataFrame, index: str, columns: str, value: str, float_format: str = "%.1f"
+) -> pd.DataFrame:
+    """Table of "mean ± std" strings over seeds (rows ``index``, columns ``columns``).
+
+    A cell with one seed shows the mean alone (no spread can be estimated); an
+    empty combination shows "".
+    """
+    stats = mean_std_values(df, index, columns, value)
+    out = pd.DataFrame(index=stats.index, columns=stats["mean"].columns, dtype=object)
+    for col in out.columns:
+        for row in out.index:
+            m, s, n = stats.at[row, ("mean", col)], stats.at[row, ("std", col)], stats.at[row, ("n", col)]
+            if pd.isna(n) or n == 0:
+                out.at[row, col] = ""
+            elif n == 1:
+                out.at[row, col] = float_format % m
+            else:
+                out.at[row, col] = f"{float_format % m} {PLUS_MINUS} {float_format % s}"
+    out.columns.name = columns
+    return out

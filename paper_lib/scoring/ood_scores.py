@@ -1,0 +1,202 @@
+"""Scoring one run's ID/OOD dataset with every detector and turning the scores into metrics.
+
+Every detector is evaluated on the same states: the ID states held apart from the detector
+fitting half, and all OOD states. The member-free detectors (Mahalanobis, kNN) are fitted
+on the other ID half, made of other episodes, so they never score a state they were fitted
+on, nor one whose episode-mates they were fitted on.
+
+Scoring is seeded from the run's seed: the fit/eval split, the noise OOD states and the
+bootstrap (numpy), and the MC methods' per-state samples (torch). A stochastic method
+(MC Dropout, MC DropConnect) is scored under several scoring seeds: its metrics are the
+means over them, with their spread beside them, so that the sampling noise of the
+uncertainty estimate is reported instead of hidden.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecNormalize
+
+from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
+from paper_lib.measures.estimates import policy_features
+from paper_lib.methods.policy import MemberActorCriticPolicy
+from paper_lib.ood.collect import noise_ood_states, score_dataset
+from paper_lib.ood.datasets import NO_CONFIG, StateDataset
+from paper_lib.scoring.metrics import measure_metrics, roc_points, seed_cluster_ci
+
+#: What the metrics tables mean, for their captions.
+METRICS_NOTE = ("OOD is the positive class; FPR@95 is the share of ID states flagged when 95% of OOD states are "
+                "caught (OpenOOD's definition); the 95% CI of AUROC is a cluster bootstrap that resamples whole ID "
+                "episodes and whole OOD configurations (and training seeds first, where a cell pools several)")
+
+
+@dataclass
+class RunScores:
+    scores: pd.DataFrame  # one row per evaluated state (first scoring seed): label, ood_set, provenance, detectors
+    metrics: pd.DataFrame  # one row per (ood_set, detector): AUROC, AUPR-in/out, FPR@95, detection error, CI, spread
+    roc: pd.DataFrame  # ROC points per (ood_set, detector), first scoring seed
+    replicates: pd.DataFrame  # cluster-bootstrap AUROC replicates per (ood_set, detector), for CIs over seeds
+
+
+def scoring_seeds(run_seed: int, n: int) -> list[int]:
+    """The torch seeds a run is scored under: fixed by the run's seed, so regenerating repeats them."""
+    return [int(np.random.SeedSequence([int(run_seed), 8, j]).generate_state(1)[0]) for j in range(n)]
+
+
+def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int | np.random.Generator,
+              n_bootstrap: int, *, n_scoring_seeds: int = 1, noise_magnitude: float = 2.0,
+              vecnormalize: VecNormalize | None = None, level: float = 0.95) -> RunScores:
+    """All measures and detectors on the physics (or game-state) OOD set and on the noise OOD set.
+
+    ``run`` is a pipeline checkpoint (its saved VecNormalize is used) or any SB3 model (pass
+    the ``vecnormalize`` it was trained with, if any). ``seed`` (the run's seed, or a numpy
+    Generator made from it) fixes every random choice, torch's MC samples included; a
+    stochastic method is scored under ``n_scoring_seeds`` torch seeds. The held-apart ID
+    states are scored once per scoring seed and serve as the ID side of both OOD sets.
+    """
+    if isinstance(seed, np.random.Generator):
+        rng, seed = seed, int(seed.integers(2**63 - 1))
+    elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r}: give the run's seed (an int >= 0) or np.random.default_rng(seed).")
+    else:
+        rng = np.random.default_rng(seed)
+    if isinstance(n_scoring_seeds, bool) or int(n_scoring_seeds) != n_scoring_seeds or n_scoring_seeds < 1:
+        raise ValueError(f"n_scoring_seeds={n_scoring_seeds!r}: need a positive integer (e.g. 5).")
+    model, vecnormalize = _model_and_normalizer(run, vecnormalize, seed % 2**31)
+    id_data, ood_data = dataset.id_only(), dataset.ood_only()
+    if len(id_data) == 0 or len(ood_data) == 0:
+        raise ValueError(f"the dataset has {len(id_data)} ID and {len(ood_data)} OOD states; scoring needs both.")
+    fit_idx, eval_idx = split_fit_eval(len(id_data), rng, groups=id_data.episode)
+    id_fit, id_eval = id_data.subset(fit_idx), id_data.subset(eval_idx)
+    noise = noise_ood_states(id_eval, rng, magnitude=noise_magnitude, vecnormalize=vecnormalize)
+    parts = {"id": id_eval, "perturbed": ood_data, "noise": noise}
+    stochastic = isinstance(model.policy, MemberActorCriticPolicy) and model.policy.samples_members
+    torch_seeds = scoring_seeds(seed, int(n_scoring_seeds) if stochastic else 1)
+    obs_scores = _observation_detectors(id_fit, parts)  # no randomness: once for all scoring seeds
+    scored = [{name: frame.assign(**obs_scores[name]) for name, frame in _score_parts(model, id_fit, parts, s).items()}
+              for s in torch_seeds]  # [scoring seed][part] -> one column per measure and detector
+    metric_rows, rocs, replicates = [], [], []
+    for ood_set in ("perturbed", "noise"):
+        columns = [c for c in scored[0]["id"].columns if c not in _META]
+        id_clusters = _clusters(parts["id"], "id")
+        ood_clusters = _clusters(parts[ood_set], "id" if ood_set == "noise" else "ood")  # noise: its ID episode
+        # Every measure of an OOD set gets the same cluster resamples: replicate i of two measures comes from
+        # the same resampled states, so differences between measures of a run are paired.
+        resample_seed = int(rng.integers(2**63 - 1))
+        for c in columns:
+            id_s = np.stack([frames["id"][c].to_numpy() for frames in scored])
+            ood_s = np.stack([frames[ood_set][c].to_numpy() for frames in scored])
+            row, reps = measure_metrics(id_s, ood_s, np.random.default_rng(resample_seed), n_boot=n_bootstrap,
+                                        level=level, id_clusters=id_clusters, ood_clusters=ood_clusters)
+            metric_rows.append({"ood_set": ood_set, "measure": c, **row})
+            replicates.append(pd.DataFrame({"ood_set": ood_set, "measure": c, "replicate": np.arange(reps.size),
+                                            "auroc": reps}))
+            rocs.append(roc_points(id_s[0], ood_s[0]).assign(measure=c, ood_set=ood_set))
+    first = scored[0]
+    frames = [pd.concat([first["id"], first[ood_set]], ignore_index=True).assign(ood_set=ood_set)
+              for ood_set in ("perturbed", "noise")]
+    return RunScores(pd.concat(frames, ignore_index=True), pd.DataFrame(metric_rows)[_METRIC_ORDER],
+                     pd.concat(rocs, ignore_index=True), pd.concat(replicates, ignore_index=True))
+
+
+_META = ("label", "source", "episode", "step", "config_index", "ood_set")
+_METRIC_ORDER = ["ood_set", "measure", "auroc", "auroc_ci_low", "auroc_ci_high", "aupr_in", "aupr_out",
+                 "fpr_at_95_tpr", "detection_error", "auroc_scoring_std", "auroc_scoring_min", "auroc_scoring_max",
+                 "n_scoring_seeds", "ci", "n_id", "n_ood", "n_id_clusters", "n_ood_clusters"]
+
+
+def _model_and_normalizer(run: Checkpoint | BaseAlgorithm, vecnormalize: VecNormalize | None,
+                          seed: int) -> tuple[BaseAlgorithm, VecNormalize | None]:
+    """The model, and the observation normalizer it was trained with (a checkpoint's saved one)."""
+    if isinstance(run, Checkpoint):
+        if vecnormalize is None and run.vecnormalize_path is not None:
+            vecnormalize = run.env(1, seed)  # a VecNormalize with the saved, frozen statistics
+        return run.model, vecnormalize
+    if isinstance(run, BaseAlgorithm):
+        return run, vecnormalize
+    raise TypeError(f"score_run needs a Checkpoint (load_checkpoint) or an SB3 model, got {type(run).__name__}.")
+
+
+def _clusters(data: StateDataset, side: str) -> np.ndarray:
+    """One cluster label per state: its OOD configuration, else its episode.
+
+    States derived from ID states (noise, pixels) keep their ID episode, so with side="id"
+    they share their cluster with the ID states they were made from.
+    """
+    episode = np.char.add(f"{side}-episode-", data.episode.astype(str))
+    config = np.char.add(f"{side}-config-", data.config_index.astype(str))
+    return np.where(data.config_index != NO_CONFIG, config, episode)
+
+
+def _policy_obs(data: StateDataset) -> np.ndarray:
+    return data.policy_obs if data.policy_obs is not None else data.states
+
+
+def _observation_detectors(id_fit: StateDataset, parts: dict[str, StateDataset]) -> dict[str, dict[str, np.ndarray]]:
+    """Mahalanobis and 5-NN distance on the observations as the policy sees them, fitted on `id_fit`."""
+    fit_obs = _policy_obs(id_fit).reshape(len(id_fit), -1).astype(np.float32)
+    detectors = {"knn_obs": KNNDetector().fit(fit_obs)}
+    if _policy_obs(id_fit).ndim == 2:  # on raw pixels it would need a (84*84*4)^2 covariance
+        detectors["mahalanobis_obs"] = MahalanobisDetector().fit(fit_obs)
+    return {name: {det_name: det.score(_policy_obs(data).reshape(len(data), -1).astype(np.float32))
+                   for det_name, det in detectors.items()} for name, data in parts.items()}
+
+
+def _score_parts(model: BaseAlgorithm, id_fit: StateDataset, parts: dict[str, StateDataset],
+                 torch_seed: int) -> dict[str, pd.DataFrame]:
+    """Every measure and both feature detectors on each part, with the MC samples of one scoring seed.
+
+    Each part gets its own derived seed, so an ID state and the OOD state at the same index
+    are not scored with the same masks; the policy features (feature detectors) of a state
+    share its member outputs' masks, as one forward pass would.
+    """
+    seeds = {name: int(np.random.SeedSequence([torch_seed, i]).generate_state(1)[0])
+             for i, name in enumerate(["fit", *parts])}
+    fit_features = policy_features(model.policy, _policy_obs(id_fit), seed=seeds["fit"])
+    detectors = {"mahalanobis_features": MahalanobisDetector().fit(fit_features),
+                 "knn_features": KNNDetector().fit(fit_features)}
+    out = {}
+    for name, data in parts.items():
+        frame = score_dataset(model, data, seed=seeds[name])
+        features = policy_features(model.policy, _policy_obs(data), seed=seeds[name])
+        for det_name, det in detectors.items():
+            frame[det_name] = det.score(features)
+        out[name] = frame
+    return out
+
+
+def summarize_seeds(metrics: pd.DataFrame, replicates: pd.DataFrame, rng: np.random.Generator, n_boot: int = 1000,
+                    level: float = 0.95, keys: tuple[str, ...] = ("env", "method")) -> pd.DataFrame:
+    """One row per (keys, ood_set, measure) over the training seeds: the table's numbers.
+
+    Metrics are means over seeds (each already a mean over scoring seeds); the AUROC interval
+    resamples seeds, then clusters within each (`seed_cluster_ci`); auroc_seed_std is the
+    spread over training seeds (NaN with one), auroc_scoring_std the mean spread over scoring
+    seeds. With one seed every number equals that run's own.
+    """
+    group = [*keys, "ood_set", "measure"]
+    missing = [c for c in [*group, "seed", "auroc"] if c not in metrics.columns]
+    if missing:
+        raise ValueError(f"summarize_seeds: metrics lack columns {missing}; tag each run's metrics with "
+                         f"{[*keys, 'seed']} first.")
+    reps = {key: frame["auroc"].to_numpy() for key, frame in replicates.groupby([*group, "seed"], sort=False)}
+    rows = []
+    for key, frame in metrics.groupby(group, sort=False):
+        per_seed = [reps[(*key, s)] for s in frame["seed"]]
+        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level)
+        row = dict(zip(group, key))
+        row.update(n_seeds=len(frame), auroc=frame["auroc"].mean(), auroc_ci_low=low, auroc_ci_high=high,
+                   auroc_seed_std=frame["auroc"].std(ddof=1) if len(frame) > 1 else np.nan)
+        for column in ("aupr_in", "aupr_out", "fpr_at_95_tpr", "detection_error", "auroc_scoring_std"):
+            row[column] = frame[column].mean()
+        row.update(auroc_scoring_min=frame["auroc_scoring_min"].min(),
+                   auroc_scoring_max=frame["auroc_scoring_max"].max(), n_scoring_seeds=int(frame["n_scoring_seeds"].max()), n_id=frame["n_id"].mean(),
+                   n_ood=frame["n_ood"].mean(), n_id_clusters=frame["n_id_clusters"].mean(),
+                   n_ood_clusters=frame["n_ood_clusters"].mean())
+        rows.append(row)
+    return pd.DataFrame(rows)

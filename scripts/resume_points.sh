@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Long runs outlive a machine: commit each unfinished run's latest resume point with the project, and put it
+# back on the next machine. A resume point (`.<run>.resume/` beside the run's checkpoint path, paper_lib.agents.training)
+# holds the model with its optimizer, the normalizer, the curve so far and the RNG states: well under 1 MB for
+# the MuJoCo MLPs.
+#   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs still in progress
+#                                                          (no model.zip yet) into REPO/results/resume_points/,
+#                                                          and drop the copies of runs that have landed
+#   scripts/resume_points.sh restore [REPO] TRAINING_TREE  put them back where training resumes from them
+# REPO defaults to the repository this script is in. Paths below results/ are kept:
+#   results/recipe_probes/Walker2d-v5/x/.seed1.resume/  <->  results/resume_points/recipe_probes/Walker2d-v5/x/seed1/
+set -euo pipefail
+here=$(cd "$(dirname "$0")/.." && pwd)
+mode=${1:-}
+case "$mode" in
+  save) tree=${2:?usage: save TRAINING_TREE [REPO]}; repo=${3:-$here} ;;
+  restore) if [ $# -ge 3 ]; then repo=$2; tree=$3; else repo=$here; tree=${2:?usage: restore [REPO] TRAINING_TREE}; fi ;;
+  *) echo "usage: $0 save TRAINING_TREE [REPO] | restore [REPO] TRAINING_TREE" >&2; exit 2 ;;
+esac
+store="$repo/results/resume_points"
+[ -d "$tree/results" ] || { echo "error: $tree has no results/ folder: give the training tree's root" >&2; exit 2; }
+
+if [ "$mode" = save ]; then
+  n=0
+  while IFS= read -r -d '' state; do
+    resume=$(dirname "$state")                     # .../x/.seed1.resume
+    run="$(dirname "$resume")/$(basename "$resume" .resume | sed 's/^\.//')"  # .../x/seed1
+    rel=${run#"$tree/results/"}
+    if [ -f "$run/model.zip" ]; then
+      rm -rf "${store:?}/$rel"                      # landed: its resume point is no longer needed
+      continue
+    fi
+    mkdir -p "$store/$rel.tmp" && cp -r "$resume/." "$store/$rel.tmp/"
+    rm -rf "${store:?}/$rel" && mv "$store/$rel.tmp" "$store/$rel"   # a kill leaves the previous copy
+    n=$((n + 1)); echo "saved $rel ($(du -sh "$store/$rel" | cut -f1))"
+  done < <(find "$tree/results" -path "$store" -prune -o -name state.pkl -path '*/.*.resume/*' -print0)
+  echo "$n resume point(s) in $store"
+else
+  [ -d "$store" ] || { echo "no resume points in $store"; exit 0; }
+  while IFS= read -r -d '' state; do
+    saved=$(dirname "$state"); rel=${saved#"$store/"}
+    if [ -f "$tree/results/$rel/model.zip" ]; then echo "skip $rel: it has landed"; continue; fi
+    target="$tree/results/$(dirname "$rel")/.$(basename "$rel").resume"
+    mkdir -p "$target" && cp -r "$saved/." "$target/"
+    echo "restored $rel -> $target"
+  done < <(find "$store" -name state.pkl -print0)
+fi
