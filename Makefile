@@ -16,7 +16,7 @@ WITH_VENV := PATH=$(CURDIR)/$(BIN):$$PATH
 
 setup: $(STAMP)
 
-# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels (../shared/NOTES.md).
+# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels.
 $(STAMP): environment.lock pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q torch==2.13.0

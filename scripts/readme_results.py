@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from paper_lib.measures.definitions import MEMBER_MEASURES
+
 README = Path("README.md")
 RESULTS_PAGE = Path("docs/results.md")
 BENCH_PAGE = Path("docs/benchmarks.md")
@@ -56,7 +58,6 @@ BENCH_ROWS = (
     ("SeaquestNoFrameskip-v4", "rss_increase_infer_mb",
      "Seaquest, peak memory scoring 4096 states, above the process (issue target: 1.5x)"),
 )
-MEMBER_MEASURES = ("value_std", "policy_std", "policy_js")
 FREE_PREFIXES = ("mahalanobis", "knn")
 
 
@@ -66,12 +67,12 @@ def _range(values: pd.Series) -> str:
 
 
 def reward_lines(tables: Path) -> list[str]:
-    """Ours against the paper, per run cell that exists (deterministic actions, as the paper's Table 1)."""
+    """Ours against the paper, per run cell that exists (sampled actions, as the paper's Table 1)."""
     vs = pd.read_csv(tables / "paper_vs_us_rewards.csv").dropna(subset=["ours"])
     lines = []
     for env, rows in vs.groupby("env", sort=False):
         cells = [f"{r.method} ({r.inference}) {r.ours:.0f} vs {r.paper:.0f}" for r in rows.itertuples()]
-        lines.append(f"- **{env}, reward ours vs the paper:** " + "; ".join(cells) + ".")
+        lines.append(f"- **{env}, reward ours (sampled) vs the paper:** " + "; ".join(cells) + ".")
     return lines
 
 
@@ -93,10 +94,26 @@ def auroc_lines(tables: Path) -> list[str]:
     return lines
 
 
+def verdict_lines(tables: Path) -> list[str]:
+    """Per claim of notebook 6: in which envs it holds, does not hold, or is inconclusive."""
+    path = tables / "paper_claims.csv"
+    if not path.exists():
+        return []
+    claims = pd.read_csv(path)
+    lines = []
+    for claim, rows in claims.groupby("claim", sort=False):
+        by_verdict = rows.groupby("verdict", sort=False)["env"].agg(lambda envs: ", ".join(envs))
+        lines.append(f"- **{claim}:** " + "; ".join(f"{verdict} ({envs})" for verdict, envs in by_verdict.items()) + ".")
+    return lines
+
+
 def reading(tables: Path) -> str:
     lines = ["What these numbers say (computed from the tables above by `scripts/readme_results.py`; cells "
-             "with one seed are hints, not findings):"]
-    return "\n".join(lines + reward_lines(tables) + auroc_lines(tables))
+             "with one seed are hints, not findings). The verdicts of notebook 6 (one rule for every claim: holds "
+             "when the 95% interval excludes failure, does not hold when it excludes success, inconclusive "
+             "otherwise):"]
+    return "\n".join(lines + verdict_lines(tables) + ["", "The numbers behind them:"] + reward_lines(tables)
+                     + auroc_lines(tables))
 
 
 def repeated_games_line(tables: Path) -> str:

@@ -15,7 +15,8 @@ from scipy.stats import norm
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from paper_lib.reporting import paper_tables as report
-from paper_lib.scoring.metrics import difference_ci, mean_replicates, seed_cluster_ci, seed_cluster_difference
+from paper_lib.scoring.metrics import (difference_ci, mean_replicates, seed_cluster_ci, seed_cluster_difference,
+                                       seed_cluster_replicates, t_interval)
 
 REPO = Path(__file__).resolve().parents[1]
 CPU = REPO / "results" / "cpu"
@@ -113,9 +114,11 @@ def test_reward_difference_table_puts_sampled_first_and_states_the_counts():
              for m, i in (("baseline", "single"), ("ensemble", "combined")) for d in (False, True)]
     long = report.reward_vs_baseline(pd.concat(parts, ignore_index=True), ["baseline", "ensemble"], n_boot=200)
     wide = report.reward_difference_table(long)
-    assert list(wide.columns[:6]) == ["env", "method", "inference", "sampled difference", "sampled ci_low",
-                                      "sampled ci_high"]
-    assert wide.columns[6] == "deterministic difference" and wide.pairing.tolist() == ["paired"]
+    assert list(wide.columns[:7]) == ["env", "method", "inference", "sampled difference", "sampled ci_low",
+                                      "sampled ci_high", "sampled baseline"]
+    assert wide.columns[7] == "deterministic difference" and wide.pairing.tolist() == ["paired"]
+    base = parts[0].groupby("seed").reward.mean().mean()  # the baseline's sampled reward: the claim's margin rests on it
+    assert wide["sampled baseline"].iloc[0] == pytest.approx(base)
     assert report.counts_note(long) == "each row: 2 seeds, 12 episodes per action mode; the baseline: 2 seeds, 12 episodes"
     assert report.reward_pairing_note(long).startswith("paired bootstrap for combined inference (1 rows)")
     empty = report.reward_vs_baseline(parts[2], ["baseline", "ensemble"], n_boot=10)  # no baseline: no rows, same columns
@@ -140,8 +143,9 @@ def test_difference_ci_pairings():
         difference_ci(reps, reps[:2], rng, "paired")
 
 
-def test_seed_cluster_ci_is_unchanged_by_the_refactoring():
-    """seed_cluster_ci draws exactly as before: seeds, then one replicate per drawn seed (the scored CIs depend on it)."""
+def test_seed_cluster_ci_draws_seeds_then_replicates_and_floors_at_t():
+    """The bootstrap part draws exactly as before (seeds, then one replicate per drawn seed: single-run scores depend
+    on it); the interval reported over 3 seeds is that percentile interval widened to Student's t."""
     rng = np.random.default_rng(0)
     reps = [rng.normal(m, 0.02, 300) for m in (0.6, 0.7, 0.8)]
     draw = np.random.default_rng(9)
@@ -149,7 +153,11 @@ def test_seed_cluster_ci_is_unchanged_by_the_refactoring():
     picks = draw.random(size=(500, 3))
     stacked = np.stack(reps)
     expected = np.nanquantile(stacked[seeds, (picks * 300).astype(int)].mean(axis=1), [0.025, 0.975])
-    assert seed_cluster_ci(reps, np.random.default_rng(9), n_boot=500) == tuple(expected)
+    assert np.quantile(seed_cluster_replicates(reps, np.random.default_rng(9), 500), [0.025, 0.975]) == pytest.approx(expected)
+    floor = t_interval([r.mean() for r in reps])
+    assert seed_cluster_ci(reps, np.random.default_rng(9), n_boot=500) == (min(expected[0], floor[0]),
+                                                                         max(expected[1], floor[1]))
+    assert seed_cluster_ci(reps[:1], np.random.default_rng(9), n_boot=500) == tuple(np.quantile(reps[0], [0.025, 0.975]))
 
 
 # ------------------------------------------------------------------------------------------------- AUROC

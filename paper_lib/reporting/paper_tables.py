@@ -154,16 +154,18 @@ def _seed_rewards(cell: pd.DataFrame) -> list[np.ndarray]:
 
 
 def reward_intervals(episodes: pd.DataFrame, n_boot: int, seed: int = 0, level: float = 0.95) -> pd.DataFrame:
-    """Per reward cell, a percentile interval of its mean (the mean over seeds of each seed's episode mean).
+    """Per reward cell, an interval of its mean (the mean over seeds of each seed's episode mean).
 
-    Two-level cluster bootstrap: resample the seeds, then the episodes within each drawn seed;
-    with one seed, the episodes only. Seeded per cell (`cell_rng`).
+    Two-level cluster bootstrap: resample the seeds, then the episodes within each drawn seed, never
+    narrower than Student's t over the seed means (`metrics.seed_cluster_ci`); with one seed, the
+    episodes of that one run only. Seeded per cell (`cell_rng`).
     """
     rows = []
     for key, cell in episodes.groupby(REWARD_KEYS, sort=False):
         rng = cell_rng(seed, *key)
-        per_seed = [mean_replicates(r, rng, n_boot) for r in _seed_rewards(cell)]
-        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level)
+        rewards = _seed_rewards(cell)
+        per_seed = [mean_replicates(r, rng, n_boot) for r in rewards]
+        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level, estimates=[r.mean() for r in rewards])
         rows.append({**dict(zip(REWARD_KEYS, key)), "ci_low": low, "ci_high": high,
                      "ci_over": "seeds, then episodes" if len(per_seed) > 1 else "episodes"})
     return pd.DataFrame(rows)
@@ -200,21 +202,24 @@ def reward_difference(cell: pd.DataFrame, base: pd.DataFrame, rng: np.random.Gen
     Paired (the same seed and episode draws for both) where both played the same episode slots
     (`episode_slots`); otherwise each side is resampled on its own ("unpaired").
     """
-    difference = np.mean([r.mean() for r in _seed_rewards(cell)]) - np.mean([r.mean() for r in _seed_rewards(base)])
+    means_a, means_b = (np.array([r.mean() for r in _seed_rewards(side)]) for side in (cell, base))
+    difference = means_a.mean() - means_b.mean()
     pairs = _paired_rewards(cell, base)
     if pairs is not None:
         reps = [mean_replicates(p, rng, n_boot) for p in pairs]
-        low, high = difference_ci([r[0] for r in reps], [r[1] for r in reps], rng, "paired", n_boot, level)
+        low, high = difference_ci([r[0] for r in reps], [r[1] for r in reps], rng, "paired", n_boot, level,
+                                  estimates_a=[p[0].mean() for p in pairs], estimates_b=[p[1].mean() for p in pairs])
     else:
         a, b = ([mean_replicates(r, rng, n_boot) for r in _seed_rewards(side)] for side in (cell, base))
-        low, high = difference_ci(a, b, rng, "unpaired", n_boot, level)
-    return {"difference": float(difference), "ci_low": low, "ci_high": high,
+        low, high = difference_ci(a, b, rng, "unpaired", n_boot, level, estimates_a=means_a, estimates_b=means_b)
+    return {"difference": float(difference), "ci_low": low, "ci_high": high, "baseline": float(means_b.mean()),
             "pairing": "paired" if pairs is not None else "unpaired", "n_seeds": int(cell["seed"].nunique()),
             "n_episodes": len(cell), "baseline_seeds": int(base["seed"].nunique()), "baseline_episodes": len(base)}
 
 
 #: The columns of `reward_vs_baseline` (also those of an empty result, e.g. a profile without a baseline run).
-REWARD_DIFFERENCE_COLUMNS = ["env", "method", "inference", "actions", "difference", "ci_low", "ci_high", "pairing",
+REWARD_DIFFERENCE_COLUMNS = ["env", "method", "inference", "actions", "difference", "ci_low", "ci_high", "baseline",
+                             "pairing",
                              "n_seeds", "n_episodes", "baseline_seeds", "baseline_episodes"]
 
 
@@ -245,7 +250,7 @@ def reward_difference_table(long: pd.DataFrame) -> pd.DataFrame:
     keys = ["env", "method", "inference"]
     parts = []
     for actions in ("sampled", "deterministic"):
-        part = long[long["actions"] == actions].set_index(keys)[["difference", "ci_low", "ci_high"]]
+        part = long[long["actions"] == actions].set_index(keys)[["difference", "ci_low", "ci_high", "baseline"]]
         parts.append(part.add_prefix(f"{actions} "))
     pairing = long.groupby(keys, observed=True, sort=False)["pairing"].agg(lambda p: " / ".join(pd.unique(p)))
     counts = long.groupby(keys, observed=True, sort=False)[["n_seeds", "n_episodes"]].max()
@@ -371,7 +376,8 @@ def _seed_aurocs(metrics: pd.DataFrame, env: str, method: str, ood_set: str, mea
 
 def _auroc_difference(a: pd.Series, b: pd.Series, reps_a: list[np.ndarray], reps_b: list[np.ndarray],
                       rng: np.random.Generator, pairing: str, n_boot: int, level: float) -> dict[str, float]:
-    low, high = difference_ci(reps_a, reps_b, rng, pairing, n_boot, level)
+    low, high = difference_ci(reps_a, reps_b, rng, pairing, n_boot, level, estimates_a=a.to_numpy(),
+                              estimates_b=b.to_numpy())
     return {"difference": float(a.mean() - b.mean()), "ci_low": low, "ci_high": high}
 
 
@@ -453,6 +459,40 @@ def auroc_members_vs_baseline(metrics: pd.DataFrame, replicates: Replicates, met
                          "pairing": "unpaired", "n_seeds": len(a), "baseline_seeds": len(b)})
     return _sorted_auroc_rows(pd.DataFrame(rows, columns=BASELINE_DIFFERENCE_COLUMNS), methods,
                               ["env", "ood_set", "method", "family"])
+
+
+#: The columns of `auroc_between_methods` (also of an empty result).
+PAIRWISE_COLUMNS = ["env", "ood_set", "measure", "method", "versus", "auroc", "versus_auroc", "difference", "ci_low",
+                    "ci_high", "pairing", "n_seeds"]
+
+
+def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: list[tuple[str, str]],
+                          measures: tuple[str, ...], n_boot: int, seed: int = 0, ood_set: str = "perturbed",
+                          level: float = 0.95) -> pd.DataFrame:
+    """For each env and measure, AUROC(method) - AUROC(versus) over the seeds both have, with its interval.
+
+    Two agents, each on the states it collected: seed s of one is compared with seed s of the other
+    (seeds drawn once for both), cluster resamples independent ("seeds" pairing); the interval is at
+    least Student's t over the per-seed differences (`metrics.difference_ci`).
+    """
+    rows = []
+    cells = metrics[metrics["ood_set"] == ood_set]
+    for env in pd.unique(cells["env"]):
+        for measure in measures:
+            for method, versus in pairs:
+                a, b = (_seed_aurocs(metrics, env, m, ood_set, measure) for m in (method, versus))
+                seeds = a.index.intersection(b.index)
+                if seeds.empty:
+                    continue
+                a, b = a[seeds], b[seeds]
+                reps_a = [replicates[(env, method, s, ood_set, measure)] for s in seeds]
+                reps_b = [replicates[(env, versus, s, ood_set, measure)] for s in seeds]
+                rng = cell_rng(seed, env, ood_set, measure, method, versus)
+                rows.append({"env": env, "ood_set": ood_set, "measure": measure, "method": method, "versus": versus,
+                             "auroc": a.mean(), "versus_auroc": b.mean(),
+                             **_auroc_difference(a, b, reps_a, reps_b, rng, "seeds", n_boot, level),
+                             "pairing": "seeds", "n_seeds": len(seeds)})
+    return pd.DataFrame(rows, columns=PAIRWISE_COLUMNS)
 
 
 def ci_verdicts(df: pd.DataFrame) -> dict[str, int]:

@@ -11,7 +11,9 @@ Confidence intervals: a run's states come in clusters (the states of one episode
 one OOD configuration, are far from independent), so `cluster_bootstrap_auroc` resamples
 whole clusters; resampling single states (`bootstrap_auroc_ci`) gives intervals that are
 too narrow for such data. `seed_cluster_ci` combines runs of several training seeds:
-resample seeds, then clusters within each. The same two levels give the reward tables'
+resample seeds, then clusters within each, and never reports less than Student's t interval over
+the seed estimates (`t_interval`): with 3 seeds, a percentile bootstrap spans about their min-max
+and covers far less than 95% (tests/test_table_statistics.py simulates it). The same two levels give the reward tables'
 intervals (`mean_replicates` of each seed's episodes) and the intervals of differences
 between methods or measures (`difference_ci`, paired where both sides share their resamples).
 """
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy.stats import rankdata
+from scipy.stats import t as student_t
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
 ArrayLike = np.ndarray | list[float] | pd.Series
@@ -254,14 +257,50 @@ def _percentile_interval(values: np.ndarray, level: float) -> tuple[float, float
     return float(low), float(high)
 
 
+def t_interval(estimates: ArrayLike, level: float = 0.95) -> tuple[float, float]:
+    """Student's t interval of the mean of n >= 2 per-seed estimates: the floor of every interval over seeds."""
+    x = np.asarray(estimates, dtype=float)
+    if x.ndim != 1 or x.size < 2 or not np.all(np.isfinite(x)):
+        raise ValueError(f"t_interval needs two or more finite per-seed estimates, got {x.tolist()}.")
+    half = float(student_t.ppf(0.5 + level / 2.0, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return float(x.mean() - half), float(x.mean() + half)
+
+
+def welch_interval(a: ArrayLike, b: ArrayLike, level: float = 0.95) -> tuple[float, float]:
+    """Welch's t interval of mean(a) - mean(b) for two independent samples of seeds (each n >= 2)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    se = np.sqrt(va + vb)
+    dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1)) if se > 0 else 1.0
+    half = float(student_t.ppf(0.5 + level / 2.0, dof) * se)
+    return float(a.mean() - b.mean() - half), float(a.mean() - b.mean() + half)
+
+
+def _widen(interval: tuple[float, float], floor: tuple[float, float]) -> tuple[float, float]:
+    return min(interval[0], floor[0]), max(interval[1], floor[1])
+
+
+def _seed_estimates(reps: list[np.ndarray], estimates: ArrayLike | None) -> np.ndarray:
+    est = np.array([r.mean() for r in reps]) if estimates is None else np.asarray(estimates, dtype=float)
+    if est.shape != (len(reps),):
+        raise ValueError(f"estimates must give one number per training seed ({len(reps)}), got shape {est.shape}.")
+    return est
+
+
 def seed_cluster_ci(replicates: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int = 1000,
-                    level: float = 0.95) -> tuple[float, float]:
+                    level: float = 0.95, estimates: ArrayLike | None = None) -> tuple[float, float]:
     """Interval of the mean over training seeds: resample seeds, then clusters within each.
 
-    The percentile interval of `seed_cluster_replicates`; with one seed this is that seed's own
-    cluster interval.
+    The percentile interval of `seed_cluster_replicates`, widened where needed to Student's t
+    interval over the seeds' `estimates` (each seed's own number; by default the mean of its
+    replicates): the hierarchical bootstrap may add the within-seed part, never go below t.
+    With one seed this is that seed's own cluster interval (episodes or states of one run only).
     """
-    return _percentile_interval(seed_cluster_replicates(replicates, rng, n_boot=n_boot), level)
+    reps = _seed_replicates(replicates)
+    interval = _percentile_interval(seed_cluster_replicates(reps, rng, n_boot=n_boot), level)
+    if len(reps) < 2:
+        return interval
+    return _widen(interval, t_interval(_seed_estimates(reps, estimates), level))
 
 
 def mean_replicates(values: ArrayLike, rng: np.random.Generator, n_boot: int = 1000) -> np.ndarray:
@@ -315,10 +354,23 @@ def seed_cluster_difference(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rn
 
 
 def difference_ci(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rng: np.random.Generator, pairing: str,
-                  n_boot: int = 1000, level: float = 0.95) -> tuple[float, float]:
-    """Percentile interval of mean(a) - mean(b) over training seeds (see `seed_cluster_difference`)."""
+                  n_boot: int = 1000, level: float = 0.95, estimates_a: ArrayLike | None = None,
+                  estimates_b: ArrayLike | None = None) -> tuple[float, float]:
+    """Interval of mean(a) - mean(b) over training seeds (see `seed_cluster_difference`), at least Student's t.
+
+    The bootstrap's percentile interval, widened where needed to t over the per-seed differences
+    (paired and same-seed sides, n >= 2) or to Welch's interval (unpaired sides, each n >= 2).
+    `estimates_*` are each seed's own number (default: the mean of its replicates).
+    """
     _check_bootstrap_args(rng, n_boot, level)
-    return _percentile_interval(seed_cluster_difference(a, b, rng, pairing, n_boot=n_boot), level)
+    interval = _percentile_interval(seed_cluster_difference(a, b, rng, pairing, n_boot=n_boot), level)
+    reps_a, reps_b = _seed_replicates(a), _seed_replicates(b)
+    est_a, est_b = _seed_estimates(reps_a, estimates_a), _seed_estimates(reps_b, estimates_b)
+    if pairing != "unpaired" and len(reps_a) >= 2:
+        return _widen(interval, t_interval(est_a - est_b, level))
+    if pairing == "unpaired" and len(reps_a) >= 2 and len(reps_b) >= 2:
+        return _widen(interval, welch_interval(est_a, est_b, level))
+    return interval
 
 
 def measure_metrics(
