@@ -6,12 +6,17 @@
 #   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs still in progress
 #                                                          (no model.zip yet) into REPO/results/resume_points/,
 #                                                          and drop the copies of runs that have landed
+#   scripts/resume_points.sh save --keep-landed TRAINING_TREE [REPO]
+#                                                          also keep finished runs' last resume points (a probe
+#                                                          to be extended to a larger budget later)
 #   scripts/resume_points.sh restore [REPO] TRAINING_TREE  put them back where training resumes from them
 # REPO defaults to the repository this script is in. Paths below results/ are kept:
 #   results/recipe_probes/Walker2d-v5/x/.seed1.resume/  <->  results/resume_points/recipe_probes/Walker2d-v5/x/seed1/
 set -euo pipefail
 here=$(cd "$(dirname "$0")/.." && pwd)
 mode=${1:-}
+keep_landed=0
+if [ "$mode" = save ] && [ "${2:-}" = --keep-landed ]; then keep_landed=1; shift; fi
 case "$mode" in
   save) tree=${2:?usage: save TRAINING_TREE [REPO]}; repo=${3:-$here} ;;
   restore) if [ $# -ge 3 ]; then repo=$2; tree=$3; else repo=$here; tree=${2:?usage: restore [REPO] TRAINING_TREE}; fi ;;
@@ -26,7 +31,7 @@ if [ "$mode" = save ]; then
     resume=$(dirname "$state")                     # .../x/.seed1.resume
     run="$(dirname "$resume")/$(basename "$resume" .resume | sed 's/^\.//')"  # .../x/seed1
     rel=${run#"$tree/results/"}
-    if [ -f "$run/model.zip" ]; then
+    if [ -f "$run/model.zip" ] && [ $keep_landed = 0 ]; then
       rm -rf "${store:?}/$rel"                      # landed: its resume point is no longer needed
       continue
     fi
@@ -39,7 +44,7 @@ else
   [ -d "$store" ] || { echo "no resume points in $store"; exit 0; }
   while IFS= read -r -d '' state; do
     saved=$(dirname "$state"); rel=${saved#"$store/"}
-    if [ -f "$tree/results/$rel/model.zip" ]; then echo "skip $rel: it has landed"; continue; fi
+    if [ -f "$tree/results/$rel/model.zip" ]; then echo "note $rel has landed: its resume point extends it"; fi
     target="$tree/results/$(dirname "$rel")/.$(basename "$rel").resume"
     mkdir -p "$target" && cp -r "$saved/." "$target/"
     echo "restored $rel -> $target"

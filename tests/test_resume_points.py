@@ -46,6 +46,18 @@ def test_save_then_restore_on_another_machine(tmp_path):
     assert (back / "model.zip").read_bytes() == b"in progressmodel.zip"
 
 
+def test_keep_landed_carries_a_finished_run_to_extend_later(tmp_path):
+    tree, repo = tmp_path / "frozen", tmp_path / "repo"
+    (repo / "results").mkdir(parents=True)
+    landed = _resume_point(tree, 1, b"finished")
+    (landed.parent / "seed1").mkdir()
+    (landed.parent / "seed1" / "model.zip").write_bytes(b"checkpoint")
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    assert not (repo / "results" / "resume_points" / RUN / "seed1").exists()
+    assert _run("save", "--keep-landed", str(tree), str(repo)).returncode == 0
+    assert (repo / "results" / "resume_points" / RUN / "seed1" / "state.pkl").read_bytes() == b"finishedstate.pkl"
+
+
 def test_a_tree_without_results_is_one_clear_error(tmp_path):
     done = _run("save", str(tmp_path), str(tmp_path))
     assert done.returncode == 2 and "has no results/ folder" in done.stderr
