@@ -28,3 +28,14 @@ env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.agents.train
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.agents.training HalfCheetah-v5 mc_dropout 1 results/recipe_probes/HalfCheetah-v5/mc_dropout-normalize-p0.05/seed1 --timesteps 300000 --hp members.dropout_p=0.05
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize/seed0 --timesteps 300000 --hp normalize_obs=true
 env PAPER_LIB_RESUME_ROOT=/tmp/resume .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-normalize-reward/seed0 --timesteps 300000 --hp normalize_obs=true --hp normalize_reward=true
+# Session 23 (issue 38): rl-baselines3-zoo's whole Walker2d entry at n_envs 4, the members under it, then Ant's recipe check
+# (normalization, n_envs 4 vs 8, 2M steps). Resume points beside each run (.seedN.resume/); between machines:
+# scripts/resume_points.sh save/restore. Lines done are marked in docs/deviations.md.
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 1 results/recipe_probes/Walker2d-v5/baseline-zoo-n4-128/seed1 --timesteps 1000000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 0 results/recipe_probes/Walker2d-v5/masksembles-zoo-n4/seed0 --timesteps 300000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 0 results/recipe_probes/Walker2d-v5/mc_dropout-zoo-n4/seed0 --timesteps 300000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropconnect 0 results/recipe_probes/Walker2d-v5/mc_dropconnect-zoo-n4/seed0 --timesteps 300000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 0 results/recipe_probes/Walker2d-v5/ensemble-zoo-n4/seed0 --timesteps 300000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/recipe_probes/Walker2d-v5/baseline-zoo-n4-128/seed0 --timesteps 1000000 --hp n_envs=4 --hp normalize_reward=true --hp algo.gamma=0.99 --hp algo.n_epochs=20
+.venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-zoo-n4/seed0 --timesteps 2000000 --hp n_envs=4 --hp normalize_obs=true --hp normalize_reward=true
+.venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/recipe_probes/Ant-v5/baseline-zoo-n8/seed0 --timesteps 2000000 --hp normalize_obs=true --hp normalize_reward=true
