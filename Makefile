@@ -1,8 +1,8 @@
 # Entry points for a fresh machine (see README):
-#   make reproduce   set up .venv, then every table and figure from the committed checkpoints and datasets
-#                    (minutes; never trains, never collects; lists the profile's runs that are missing)
+#   make reproduce   set up .venv, then every table and figure from the committed runs and recordings
+#                    (minutes; never steps an env: no training, collection or episode; lists the missing runs)
 #   make test        set up .venv, then the test suite (CI runs exactly this: .ci/run)
-#   make recollect   ID/OOD states and evaluation episodes again for every committed checkpoint, then reproduce (long)
+#   make recollect   everything that simulates again (ID/OOD states, evaluation episodes, recordings, experiments), then reproduce (long)
 #   make retrain     train every missing or changed run of the active profile, then everything (HOURS per run)
 #   make verify      recompute the committed scores of one run per env aside and compare them, file by file
 #   make render-deps install the EGL libraries MuJoCo's offscreen rendering needs (Debian/Ubuntu, as root)

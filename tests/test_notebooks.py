@@ -41,8 +41,8 @@ def on_path(monkeypatch):
 
 def test_quickstart_on_a_tiny_agent_shows_uncertainty_against_detectors(tiny_checkpoint, tmp_path, on_path):
     out = run_notebook(QUICKSTART, tmp_path / "quickstart.ipynb",
-                       {"checkpoint": str(tiny_checkpoint), "n_id_states": 40, "episode_steps": 30, "frames": 3,
-                        "figures_dir": str(tmp_path / "figures")})
+                       {"checkpoint": str(tiny_checkpoint), "live": True, "n_id_states": 40, "episode_steps": 30,
+                        "frames": 3, "figures_dir": str(tmp_path / "figures")})
     outputs = _outputs(nbformat.read(out, as_version=4))
     assert not [o for o in outputs if o.output_type in ("error",) or (o.output_type == "stream" and o.name == "stderr")]
     images = [o for o in outputs if "image/png" in o.get("data", {})]
@@ -55,6 +55,22 @@ def test_quickstart_on_a_tiny_agent_shows_uncertainty_against_detectors(tiny_che
         assert len(images) == 2 and (tmp_path / "figures" / "quickstart_frames.png").is_file()
     else:
         assert len(images) == 1 and "No frames" in text
+
+
+def test_quickstart_from_its_recording_shows_what_playing_it_live_shows(tiny_checkpoint, tmp_path, on_path):
+    """A rebuild draws the recorded episode (never steps an env); on the recording's machine that is the live picture."""
+    from paper_lib.experiments.recordings import play_gravity_change, quickstart_settings, save_gravity_episode
+
+    played = (tiny_checkpoint, 30, 15, [0.0, 0.0, -1.0], 40, 0, 0)  # folder, steps, change_at, gravity, states, seed, frames
+    recording = save_gravity_episode(tmp_path / "quickstart.npz", quickstart_settings(*played), play_gravity_change(*played))
+    params = {"checkpoint": str(tiny_checkpoint), "n_id_states": 40, "episode_steps": 30, "frames": 0}
+    live = run_notebook(QUICKSTART, tmp_path / "live.ipynb", {**params, "live": True})
+    recorded = run_notebook(QUICKSTART, tmp_path / "recorded.ipynb", {**params, "recording": str(recording)})
+    outputs = _outputs(nbformat.read(recorded, as_version=4))
+    assert outputs == _outputs(nbformat.read(live, as_version=4)) and any("image/png" in o.get("data", {}) for o in outputs)
+    with pytest.raises(Exception, match=r"recorded with other settings \(episode_steps is 30, wanted 20; change_at is 15, "
+                                        r"wanted 10\).*make recollect"):
+        run_notebook(QUICKSTART, tmp_path / "other.ipynb", {**params, "episode_steps": 20, "recording": str(recording)})
 
 
 def test_quickstart_names_a_wrong_checkpoint_folder(tmp_path, on_path):

@@ -374,3 +374,20 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     versus = pd.read_csv(results / "tables" / "scaling" / "scaling_vs_paper.csv")
     assert versus["method"].tolist() == ["baseline", "masksembles"] and set(versus["ours"]) <= {"up", "flat", "down"}
     assert (results / "figures" / "scaling" / "scaling_curves.png").stat().st_size > 0
+    # The final rewards were played once, when each run landed; the notebook only read them, checked against the
+    # checkpoint beside them: another run's file (here: another width's) is refused, naming the difference.
+    first, second = scaling_cfg.runs[0], scaling_cfg.runs[1]
+    assert scaling.read_evaluation(scaling_cfg, first) == replayed_rewards(scaling_cfg, first)  # same machine, same seed
+    shutil.copy2(scaling_cfg.run_dir(first) / scaling.EVALUATION_FILE, scaling_cfg.run_dir(second) / scaling.EVALUATION_FILE)
+    with pytest.raises(ValueError, match=r"does not belong to this run \(width is 64, this run's is 96; "
+                                         r"checkpoint_sha256 is"):
+        scaling.read_evaluation(scaling_cfg, second)
+
+
+def replayed_rewards(cfg, run) -> list[float]:
+    """The run's deterministic evaluation episodes played again here, as `evaluate_run` played them."""
+    from paper_lib.agents.checkpoints import load_checkpoint
+    from paper_lib.study.objective import evaluation_episodes
+
+    checkpoint = load_checkpoint(cfg.run_dir(run), run.env_id, run.method, run.seed)
+    return evaluation_episodes(checkpoint, cfg.eval_episodes, scaling.EVAL_SEED_OFFSET + run.seed, deterministic=True)

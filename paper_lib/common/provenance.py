@@ -42,3 +42,15 @@ def cpu_info(path: str | Path = "/proc/cpuinfo") -> dict[str, str]:
         key, _, value = line.partition(":")
         fields.setdefault(key.strip(), value.strip())
     return fields
+
+
+def file_digest(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes: a result made from a checkpoint records it, so a reader can refuse a result
+    whose checkpoint has since changed (or that was copied from another run)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

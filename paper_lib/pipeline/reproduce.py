@@ -4,11 +4,13 @@
     python -m paper_lib.pipeline.reproduce --recollect   # make recollect: ID/OOD states and reward episodes again, then the above
     python -m paper_lib.pipeline.reproduce --retrain     # make retrain: plain `dvc repro`, trains missing or changed runs (hours)
 
-The default command runs only the stages that read committed files: each run's `score` stage
-and the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments where DVC finds them stale (their inputs or
-code changed), and every table and figure stage, forced, for the runs that exist. Runs of the profile that lack a checkpoint,
-dataset or evaluation are listed (printed and in results/<profile>/runs.md), never made. It
-calls DVC with `--single-item`, so no upstream stage (train, collect, evaluate) can run.
+The default command only reads committed files and never steps an env: each run's `score` stage where DVC
+finds it stale (scoring reads a committed dataset), and every table and figure stage, forced, for the runs and
+recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
+the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments) belongs to `--recollect`: MuJoCo's last
+float bits differ across CPUs and chaotic episodes amplify them, so a simulated number would move from machine to
+machine. Runs of the profile that lack a checkpoint, dataset or evaluation are listed (printed and in
+results/<profile>/runs.md), never made. It calls DVC with `--single-item`, so no upstream stage can run.
 """
 
 from __future__ import annotations
@@ -36,8 +38,10 @@ from paper_lib.pipeline.status import (
 #: Table and figure stages in dependency order (paper_vs_us reads what rewards and ood write).
 TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
                 "example_states", "quickstart", "study", "scaling", "ensembles")
-#: Stages that replay or rescore committed checkpoints (slow as the matrix grows): run only where DVC finds them stale.
+#: Experiments that play episodes with committed checkpoints: `make recollect` runs them where DVC finds them stale.
 EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
+#: What notebooks 07 and 00 draw from simulation, played once by `make recollect`.
+RECORDING_STAGES = ("record_example_states", "record_quickstart")
 QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
 #: The two parts of notebook 11; each is scored and tabled as soon as it has runs, without waiting for the other.
 ENSEMBLE_PARTS = ("independent", "own")
@@ -95,8 +99,8 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
         "ood": bool(scored),
         "uncertainty_over_time": any(run[1] != "baseline" for run in scored),
         "training_and_perturbations": bool(available_runs(cfg, "checkpoint")),
-        "example_states": True,
-        "quickstart": has(cfg, (*QUICKSTART_RUN, 0), "checkpoint"),
+        "example_states": (cfg.results / "recordings" / "example_states.npz").is_file(),
+        "quickstart": (cfg.results / "recordings" / "quickstart.npz").is_file(),
     }
     ready["paper_vs_us"] = ready["rewards"] and ready["ood"]
     results = cfg.results
@@ -107,7 +111,9 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
     why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
            "uncertainty_over_time": "no member-method run has scores",
            "training_and_perturbations": "no run has a checkpoint", "paper_vs_us": "it needs both rewards and ood",
-           "quickstart": f"its agent {' '.join(QUICKSTART_RUN)} seed 0 has no checkpoint",
+           "example_states": "its frames are not recorded yet (`make recollect`)",
+           "quickstart": "its episode is not recorded yet (`make recollect`; its agent is "
+                         f"{' '.join(QUICKSTART_RUN)} seed 0)",
            "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
            "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
            "ensembles": "it needs scored independent ensembles or own runs, and scored shared runs "
@@ -132,7 +138,8 @@ def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
 
 
 def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
-    """Score the runs with a dataset where stale (all of them with `rescore`), then every table and figure, forced."""
+    """Score the runs with a dataset where stale (all of them with `rescore`), then every table and figure, forced;
+    nothing here steps an env."""
     print(summary(cfg))
     for line in missing_lines(cfg, artifacts=("checkpoint", "dataset", "evaluation")):  # scores are made below
         print(f"  missing (not made here): {line}")
@@ -140,13 +147,8 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     if runs:
         _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
               *[f"score@{stage_suffix(*run)}" for run in runs]])
-    experiments, skipped = experiment_stages(cfg)
-    for line in skipped:
-        print(f"  {line}")
-    if "ensembles_scores" in experiments:
-        make_ensemble_folders(cfg)
-    if experiments:
-        _dvc(["repro", "--single-item", *experiments])
+    if any(_has_files(cfg.results / part / "checkpoints") for part in ENSEMBLE_PARTS):
+        make_ensemble_folders(cfg)  # the ensembles notebook's declared inputs
     stages, skipped = table_stages(cfg)
     for line in skipped:
         print(f"  {line}")
@@ -155,11 +157,20 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
 
 
 def recollect(cfg: RunConfig) -> None:
-    """ID/OOD states and evaluation episodes again for every run with a checkpoint, then `reproduce`."""
+    """Everything that simulates, again: ID/OOD states and evaluation episodes of every run with a checkpoint, the
+    recordings, the experiments where stale; then `reproduce`."""
     runs = available_runs(cfg, "checkpoint")
-    if runs:
-        _dvc(["repro", "--single-item", "--force",
-              *[f"{stage}@{stage_suffix(*run)}" for run in runs for stage in ("collect", "evaluate")]])
+    recordings = [stage for stage in RECORDING_STAGES
+                  if stage != "record_quickstart" or has(cfg, (*QUICKSTART_RUN, 0), "checkpoint")]
+    _dvc(["repro", "--single-item", "--force", *recordings,
+          *[f"{stage}@{stage_suffix(*run)}" for run in runs for stage in ("collect", "evaluate")]])
+    experiments, skipped = experiment_stages(cfg)
+    for line in skipped:
+        print(f"  {line}")
+    if "ensembles_scores" in experiments:
+        make_ensemble_folders(cfg)
+    if experiments:
+        _dvc(["repro", "--single-item", *experiments])
     reproduce(cfg)
 
 
@@ -174,7 +185,8 @@ def retrain(cfg: RunConfig) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--recollect", action="store_true", help="collect states and evaluation episodes again (long)")
+    mode.add_argument("--recollect", action="store_true",
+                      help="everything that simulates again: states, evaluation episodes, recordings, experiments (long)")
     mode.add_argument("--retrain", action="store_true", help="train missing or changed runs (hours), then everything")
     mode.add_argument("--rescore", action="store_true", help="score every run again even where DVC finds it up to date")
     args = parser.parse_args(argv)

@@ -5,8 +5,13 @@ budget (null: each env's full budget) and `fixed` algorithm settings. Each run i
 training run (`paper_lib.agents.training.train_run`, so it resumes after a kill) with the env's paper
 hyperparameters and every hidden layer set to the width, Masksembles included.
 
-    python -m paper_lib.study.scaling            # train every run of the active profile that is not done yet
-    python -m paper_lib.study.scaling --list     # the runs and their folders
+    python -m paper_lib.study.scaling             # train every run not done yet, and evaluate it once it is
+    python -m paper_lib.study.scaling --evaluate  # only evaluate trained runs that have no evaluation file yet
+    python -m paper_lib.study.scaling --list      # the runs and their folders
+
+A run's final reward is measured once, when it lands, and kept beside its checkpoint (final_evaluation.json,
+with the checkpoint's SHA-256): notebook 10 only reads these files, so a rebuild never steps an env and gives the
+same numbers on any CPU (MuJoCo's last float bits differ across CPUs and chaotic episodes amplify them).
 """
 
 from __future__ import annotations
@@ -20,10 +25,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from paper_lib.common.io import write_json_atomic
+from paper_lib.common.provenance import file_digest
 from paper_lib.methods.networks import METHODS
 from paper_lib.pipeline.config import PARAMS_FILE, read_params
 from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
+
+#: A run's final evaluation, beside its model.zip.
+EVALUATION_FILE = "final_evaluation.json"
+#: The evaluation env's seed is this plus the run's seed (the training envs use the run's seed).
+EVAL_SEED_OFFSET = 10_000
 
 KEYS = ("widths", "methods", "seeds", "total_timesteps", "fixed", "eval_episodes")
 
@@ -109,17 +121,49 @@ def is_done(cfg: ScalingConfig, run: ScalingRun) -> bool:
 
 
 def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]:
-    """Train (or resume) every run that has no finished checkpoint yet."""
+    """Train (or resume) every run that has no finished checkpoint yet; evaluate each once it has one."""
     from paper_lib.agents.training import train_run
 
     done = []
     for run in cfg.runs:
-        if is_done(cfg, run):
-            continue
-        log(f"scaling: training {run}")
-        done.append(train_run(run.env_id, run.method, run.seed, cfg.run_dir(run), total_timesteps=cfg.total_timesteps,
-                              agent_kwargs=cfg.agent_kwargs(run), torch_threads=threads))
+        if not is_done(cfg, run):
+            log(f"scaling: training {run}")
+            done.append(train_run(run.env_id, run.method, run.seed, cfg.run_dir(run),
+                                  total_timesteps=cfg.total_timesteps, agent_kwargs=cfg.agent_kwargs(run),
+                                  torch_threads=threads))
+        if not is_evaluated(cfg, run):
+            log(f"scaling: evaluating {run}")
+            evaluate_run(cfg, run)
     return done
+
+
+def evaluate_run(cfg: ScalingConfig, run: ScalingRun) -> Path:
+    """Play the run's deterministic evaluation episodes once and keep their rewards beside the checkpoint."""
+    from paper_lib.agents.checkpoints import load_checkpoint
+    from paper_lib.study.objective import evaluation_episodes
+
+    folder = cfg.run_dir(run)
+    checkpoint = load_checkpoint(folder, run.env_id, run.method, run.seed)
+    eval_seed = EVAL_SEED_OFFSET + run.seed
+    rewards = evaluation_episodes(checkpoint, cfg.eval_episodes, eval_seed, deterministic=True)
+    return write_json_atomic(folder / EVALUATION_FILE, {
+        "env": run.env_id, "method": run.method, "width": run.width, "seed": run.seed, "eval_seed": eval_seed,
+        "deterministic": True, "episodes": cfg.eval_episodes, "rewards": rewards,
+        "checkpoint_sha256": file_digest(folder / "model.zip")})
+
+
+def is_evaluated(cfg: ScalingConfig, run: ScalingRun) -> bool:
+    return (cfg.run_dir(run) / EVALUATION_FILE).is_file()
+
+
+def evaluate_missing(cfg: ScalingConfig, log=print) -> list[Path]:
+    """Evaluate every trained run that has no evaluation file yet (a run lands with its evaluation)."""
+    written = []
+    for run in trained_runs(cfg):
+        if not is_evaluated(cfg, run):
+            log(f"scaling: evaluating {run}")
+            written.append(evaluate_run(cfg, run))
+    return written
 
 
 #: `progress` status of a run with a finished checkpoint, and of one without.
@@ -155,15 +199,31 @@ def training_curves(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) ->
         columns=["timesteps", "reward", "env", "method", "width", "seed"])
 
 
-def final_rewards(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) -> pd.DataFrame:
-    """Deterministic evaluation reward of `runs` (default: every run), one row per episode."""
-    from paper_lib.agents.checkpoints import load_checkpoint
-    from paper_lib.study.objective import evaluation_episodes
+def read_evaluation(cfg: ScalingConfig, run: ScalingRun) -> list[float]:
+    """The rewards in the run's evaluation file, after checking that the file is this run's, made from the checkpoint
+    beside it, with the episodes params.yaml asks for."""
+    folder = cfg.run_dir(run)
+    path = folder / EVALUATION_FILE
+    fix = f"evaluate it again with `python -m paper_lib.study.scaling --evaluate` after deleting {path}"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing: the run has no final evaluation; "
+                                "make it with `python -m paper_lib.study.scaling --evaluate`")
+    record = json.loads(path.read_text())
+    want = {"env": run.env_id, "method": run.method, "width": run.width, "seed": run.seed,
+            "episodes": cfg.eval_episodes, "checkpoint_sha256": file_digest(folder / "model.zip")}
+    wrong = {key: (record.get(key), value) for key, value in want.items() if record.get(key) != value}
+    if wrong or len(record.get("rewards") or []) != cfg.eval_episodes:
+        what = "; ".join(f"{key} is {got!r}, this run's is {value!r}" for key, (got, value) in wrong.items())
+        raise ValueError(f"{path} does not belong to this run ({what or 'wrong number of rewards'}): {fix}")
+    return [float(r) for r in record["rewards"]]
 
+
+def final_rewards(cfg: ScalingConfig, runs: list[ScalingRun] | None = None) -> pd.DataFrame:
+    """Deterministic evaluation reward of `runs` (default: every run), one row per episode, read from the runs'
+    evaluation files (never simulated here)."""
     rows = []
     for run in cfg.runs if runs is None else runs:
-        checkpoint = load_checkpoint(cfg.run_dir(run), run.env_id, run.method, run.seed)
-        rewards = evaluation_episodes(checkpoint, cfg.eval_episodes, 10_000 + run.seed, deterministic=True)
+        rewards = read_evaluation(cfg, run)
         rows += [{"env": run.env_id, "method": run.method, "width": run.width, "seed": run.seed, "episode": i,
                   "reward": float(r)} for i, r in enumerate(rewards)]
     return pd.DataFrame(rows, columns=["env", "method", "width", "seed", "episode", "reward"])
@@ -225,6 +285,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--profile", default=None, help="budget profile (default: params.yaml's active profile)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--list", action="store_true", help="print the runs and their folders")
+    parser.add_argument("--evaluate", action="store_true", help="only evaluate trained runs that lack an evaluation")
     args = parser.parse_args(argv)
     try:
         cfg = load_scaling_config(args.params, args.profile)
@@ -232,6 +293,9 @@ def main(argv: list[str] | None = None) -> None:
             for run in cfg.runs:
                 print(f"{run.env_id} {run.method} width {run.width} seed {run.seed}: {cfg.run_dir(run)} "
                       f"({'done' if is_done(cfg, run) else 'to train'})")
+            return
+        if args.evaluate:
+            evaluate_missing(cfg)
             return
         if args.threads < 1:
             raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
