@@ -4,33 +4,34 @@
     model = make_agent("ppo", "masksembles", "HalfCheetah-v5", seed=0)
     model.learn(1_000_000)
     u = uncertainty(model.policy, observations)   # value_std, policy_std, policy_js, ...
+
+These are the names a user of the paper's methods needs; everything else lives in its layer's package
+(docs/layout.md): e.g. `paper_lib.methods` (the policies, env groups, independent ensembles),
+`paper_lib.ood` (the OOD generators), `paper_lib.guard` (the calibrated OOD guard).
 """
 
-from paper_lib.agents.envs import ATARI_ENVS, MUJOCO_ENVS, make_env
-from paper_lib.agents.factory import ALGORITHMS, ASSIGNMENTS, make_agent, paper_hyperparameters
+from paper_lib.agents.checkpoints import load_checkpoint
+from paper_lib.agents.envs import make_env
+from paper_lib.agents.factory import make_agent, paper_hyperparameters
+from paper_lib.measures.definitions import MEMBER_MEASURES
 from paper_lib.measures.estimates import MemberOutputs, act_with_uncertainty, member_outputs, uncertainty
-from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
-from paper_lib.methods.groups import MemberGroupVecEnv
-from paper_lib.methods.independent import IndependentEnsemblePolicy, assemble_ensemble, load_independent_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS, METHODS
-from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
 
 __all__ = [
-    "ALGORITHMS", "ASSIGNMENTS", "ATARI_ENVS", "INFERENCE_MODES", "MEMBER_METHODS", "METHODS", "MUJOCO_ENVS",
-    "MemberActorCriticPolicy", "MemberGroupVecEnv", "MemberOrderedRolloutBuffer", "MemberOutputs", "act_with_uncertainty", "make_agent",
-    "make_env", "member_outputs", "paper_hyperparameters", "uncertainty",
-    "IndependentEnsemblePolicy", "assemble_ensemble", "load_independent_ensemble",
-    "Cusum", "Guard", "GuardWrapper", "GuardedPolicy", "SequentialGuard", "WindowMean", "make_score",
+    "make_agent", "paper_hyperparameters", "make_env", "load_checkpoint",
+    "METHODS", "MEMBER_METHODS", "MEMBER_MEASURES",
+    "uncertainty", "member_outputs", "MemberOutputs", "act_with_uncertainty",
+    "evaluate_agent", "Guard", "GuardedPolicy",
 ]
 
-#: The OOD guard's names, served from paper_lib.guard on first use: it imports scikit-learn,
-#: which a plain `import paper_lib` should not pay for.
-_GUARD_NAMES = ("Cusum", "Guard", "GuardWrapper", "GuardedPolicy", "SequentialGuard", "WindowMean", "make_score")
+#: Served on first use: the guard imports scikit-learn and evaluate_agent the OOD benchmark, which a plain
+#: `import paper_lib` should not pay for.
+_LAZY = {"Guard": "paper_lib.guard", "GuardedPolicy": "paper_lib.guard", "evaluate_agent": "paper_lib.pipeline.evaluate_agent"}
 
 
 def __getattr__(name: str):
-    if name in _GUARD_NAMES:
-        from paper_lib import guard
+    if name in _LAZY:
+        import importlib
 
-        return getattr(guard, name)
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'paper_lib' has no attribute {name!r}")

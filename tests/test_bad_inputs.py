@@ -330,9 +330,9 @@ CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
      r"total_timesteps must be an integer, got 2\.5"),
     ("pipeline-no-checkpoint", "paper_lib.pipeline.stages", ["collect", "HalfCheetah-v5", "baseline", "0"], "good",
      r"checkpoint file .*model\.zip is missing"),
-    ("pipeline-train-method", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "bayes", "0"], "good", r"unknown method 'bayes'"),
-    ("pipeline-threads-0", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "baseline", "0", "--threads", "0"], "good",
-     r"--threads must be a positive"),
+    ("pipeline-train-moved", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "baseline", "0"], "good",
+     r"invalid choice: 'train' \(choose from '?collect'?\)"),  # one training command line: paper_lib.agents.training
+    ("train-method", "paper_lib.agents.training", ["HalfCheetah-v5", "bayes", "0", "out"], "good", r"unknown method 'bayes'"),
 ]
 
 

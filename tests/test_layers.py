@@ -7,6 +7,8 @@ then guard, study and bench, which may use everything. A module may import its o
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 PAPER_LIB = Path(__file__).resolve().parents[1] / "paper_lib"
@@ -178,6 +180,22 @@ def test_dvc_stages_depend_on_all_the_code_they_run():
     for name, stage in stages.items():
         if name in TRAINING_STAGES:
             continue
+        stage = stage.get("do", stage)  # per-run stages: `foreach` over runs.yaml, the stage under `do`
         listed = {dep for dep in stage.get("deps", []) if isinstance(dep, str)}
         missing = needed_deps(stage["cmd"]) - listed
         assert not missing, f"dvc.yaml stage {name!r} runs code in {sorted(missing)} but does not list it under deps"
+
+
+def test_the_package_root_exports_about_a_dozen_names_and_loads_the_heavy_ones_on_first_use():
+    """`from paper_lib import ...` serves what a user of the methods needs; the rest lives in its layer's package."""
+    probe = ("import sys, paper_lib; heavy = ('sklearn', 'paper_lib.guard', 'paper_lib.pipeline.evaluate_agent'); "
+             "print([m for m in heavy if m in sys.modules]); "
+             "print([n for n in paper_lib.__all__ if getattr(paper_lib, n, None) is None]); "
+             "print(paper_lib.Guard.__module__, paper_lib.evaluate_agent.__module__)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    loaded_at_import, unresolved, lazy_homes = done.stdout.splitlines()
+    assert loaded_at_import == "[]" and unresolved == "[]", done.stdout
+    assert lazy_homes == "paper_lib.guard.core paper_lib.pipeline.evaluate_agent", done.stdout
+    import paper_lib
+
+    assert 10 <= len(paper_lib.__all__) <= 16, paper_lib.__all__

@@ -1,13 +1,18 @@
 """The whole DVC pipeline on the `tiny` profile, in a temporary copy of the repository.
 
 The copy's profile asks for seeds 0 and 1 but only seed 0 is trained (the retrain path, plain
-`dvc repro` of seed 0's stages): the README's main command must then build every table and
-figure from the runs that exist, list the others, and train or collect nothing.
+`dvc repro` of seed 0's stages), and what simulates beside the runs is played once (what `make recollect`
+runs: the recordings and the experiments). The README's main command must then build every table and
+figure from the runs that exist, list the others, and train, collect or play nothing: it runs with
+environment construction made impossible (tests/no_env/sitecustomize.py, loaded by every Python process
+it starts) and must leave the committed tree unchanged.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -37,8 +42,9 @@ def _copy_repo(dst: Path) -> Path:
     return dst
 
 
-def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ['PATH']}", "MPLBACKEND": "Agg", "DVC_NO_ANALYTICS": "1"}
+def _run(args: list[str], cwd: Path, extra_env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ['PATH']}", "MPLBACKEND": "Agg", "DVC_NO_ANALYTICS": "1",
+           **(extra_env or {})}
     return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, check=False)
 
 
@@ -48,8 +54,14 @@ def _git(repo: Path, *args: str) -> str:
     return done.stdout
 
 
+#: What `make recollect` plays beside the runs' collection and evaluation.
+SIMULATING_STAGES = ("record_example_states", "record_quickstart", "guard", "spawn", "value_level")
+
+
 def _reproduce(repo: Path) -> subprocess.CompletedProcess:
-    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.reproduce"], repo)
+    """The main command, in a world where no environment can be built."""
+    no_env = {"PYTHONPATH": str(repo / "tests" / "no_env")}
+    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.reproduce"], repo, no_env)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done
 
@@ -63,12 +75,20 @@ def tiny_repo(tmp_path_factory) -> Path:
     assert params["run"]["seeds"] == [0]
     text = (repo / "params.yaml").read_text()
     (repo / "params.yaml").write_text(text.replace("  seeds: [0]\n", "  seeds: [0, 1]\n", 1))  # the `run` section
+    asked = ["--add", "HalfCheetah-v5", "baseline", "0", "--add", "HalfCheetah-v5", "masksembles", "0"]
+    done = _run([str(BIN / "python"), "-m", "paper_lib.pipeline.run_list", *asked], repo)  # seed 0 gets its stages
+    assert done.returncode == 0, done.stderr
     seed0 = [f"{stage}@HalfCheetah-v5-{method}-0" for stage in ("evaluate", "score") for method in ("baseline", "masksembles")]
     done = _run([str(BIN / "dvc"), "repro", *seed0], repo)  # trains and collects seed 0 only
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    done = _run([str(BIN / "dvc"), "repro", "--single-item", *SIMULATING_STAGES], repo)  # as `make recollect` does
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     _git(repo, "add", "-A")
-    _git(repo, "commit", "-qm", "seed 0 trained")
+    _git(repo, "commit", "-qm", "seed 0 trained, recordings and experiments played")
     repo.joinpath("main_command.log").write_text(_reproduce(repo).stdout)
+    _git(repo, "add", "-A")
+    _git(repo, "commit", "-qm", "tables and figures")
+    repo.joinpath("second_rebuild.log").write_text(_reproduce(repo).stdout)
     return repo
 
 
@@ -80,18 +100,30 @@ def _declared_outputs(repo: Path) -> list[Path]:
 
 def test_main_command_lists_missing_runs_and_trains_nothing(tiny_repo):
     log = (tiny_repo / "main_command.log").read_text()
-    for stage in ("train@", "collect@", "evaluate@", "score@"):
+    for stage in ("train@", "collect@", "evaluate@", "score@", *SIMULATING_STAGES):
         assert f"Running stage '{stage}" not in log, log
     for stage in ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
-                  "example_states", "quickstart", "guard", "spawn", "value_level"):
+                  "example_states", "quickstart"):
         assert f"Running stage '{stage}'" in log, log
-    for stage in ("study", "scaling", "ensembles_scores", "ensembles"):  # their inputs are made by long runs only
+    for stage in ("study", "scaling", "ensembles"):  # their inputs are made by long runs only
         assert f"{stage}: skipped" in log and f"Running stage '{stage}'" not in log, log
+    assert "Running stage 'ensembles_scores'" not in log, log
     assert "missing (not made here): HalfCheetah-v5 masksembles seed 1: no checkpoint" in log
     assert not (tiny_repo / "results/tiny/checkpoints/HalfCheetah-v5/masksembles/seed1").exists()
     runs = (tiny_repo / "results/tiny/runs.md").read_text()
     assert "4 runs, 2 complete" in runs and "HalfCheetah-v5 baseline seed 1: no checkpoint" in runs
     assert "Training wall time of the 2 runs trained on the CPU: " in runs  # summed from the runs' config.json
+
+
+def test_dvc_repro_plans_no_training_collection_or_evaluation_on_the_committed_tree(tiny_repo):
+    """Per-run stages exist for the runs with a committed checkpoint only (runs.yaml), so seed 1 is not trained."""
+    listed = yaml.safe_load((tiny_repo / "runs.yaml").read_text())
+    assert listed["profile"] == "tiny" and sorted(listed["committed_runs"]) == [
+        "HalfCheetah-v5-baseline-0", "HalfCheetah-v5-masksembles-0"]
+    done = _run([str(BIN / "dvc"), "repro", "--dry"], tiny_repo)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    for family in ("train@", "collect@", "evaluate@", "score@"):
+        assert f"Running stage '{family}" not in done.stdout, done.stdout
 
 
 def test_every_table_and_figure_from_the_runs_that_exist(tiny_repo):
@@ -133,16 +165,21 @@ def test_executed_notebooks_show_their_figures_and_tables_inline(tiny_repo):
         if path.stem in ("02_rewards", "03_ood_detection", "06_paper_vs_us"):
             assert any("| method" in o.get("data", {}).get("text/markdown", "") for o in outputs), path
         assert "papermill" not in nb.metadata and not any("execution" in c.metadata for c in nb.cells), path
+        text = "\n".join(json.dumps(o.get("data", {}).get("text/plain", "")) + json.dumps(o.get("text", ""))
+                         for o in outputs)  # what a reader sees: no machine detail (paths, memory addresses)
+        assert str(tiny_repo) not in text and str(Path.home()) not in text, (path, "a path of this machine")
+        assert not re.search(r"0x[0-9a-f]{8,}", text), (path, "a memory address")
 
 
-def test_regenerating_leaves_git_status_clean(tiny_repo):
-    _git(tiny_repo, "add", "-A")
-    _git(tiny_repo, "commit", "-qm", "tables and figures")
-    # One stage with tables, figures and inline images again (the whole main command twice would double this
-    # test's time); every stage writes its notebook through the same runner.
-    done = _run([str(BIN / "dvc"), "repro", "--single-item", "--force", "ood"], tiny_repo)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert _git(tiny_repo, "status", "--porcelain") == ""
+def test_rebuilding_plays_nothing_and_gives_the_same_bytes_twice(tiny_repo):
+    """The main command ran twice with no environment buildable; the second left the committed tree as it was."""
+    assert _git(tiny_repo, "status", "--porcelain") == "?? second_rebuild.log\n"  # only the log of that second run
+    second = (tiny_repo / "second_rebuild.log").read_text()
+    assert "Running stage 'quickstart'" in second and "Running stage 'example_states'" in second, second
+    # the guard is real: in that world, building any env fails with the message below
+    probe = "from paper_lib.agents.envs import make_single_env; make_single_env('HalfCheetah-v5')"
+    done = _run([str(BIN / "python"), "-c", probe], tiny_repo, {"PYTHONPATH": str(tiny_repo / "tests" / "no_env")})
+    assert done.returncode == 1 and "the rebuild tried to build an environment" in done.stderr, done.stderr[-2000:]
 
 
 def test_a_stage_with_a_missing_checkpoint_fails_clearly_and_writes_nothing(tiny_repo, tmp_path):

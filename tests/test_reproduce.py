@@ -62,3 +62,15 @@ def test_runs_md_estimates_the_missing_training_from_the_trained_runs(tmp_path: 
     times = training_time_line(cfg)
     assert times.startswith("Training wall time of the 3 runs trained on the CPU: 2.2 h in total"), times
     assert "10-90 min a run (1 run begun on a lent GPU is left out" in times, times
+
+
+def test_the_committed_run_list_names_exactly_the_runs_with_a_committed_checkpoint():
+    """runs.yaml gives dvc.yaml its per-run stages: a run listed without a checkpoint would make `dvc repro` train it."""
+    from paper_lib.pipeline.config import load_run_config
+    from paper_lib.pipeline.run_list import RUN_LIST, run_list_text
+    from paper_lib.pipeline.status import available_runs
+
+    repo = Path(__file__).resolve().parents[1]
+    cfg = load_run_config(repo / "params.yaml")
+    assert (repo / RUN_LIST).read_text() == run_list_text(cfg, available_runs(cfg, "checkpoint")), (
+        "runs.yaml is out of date: write it with `python -m paper_lib.pipeline.run_list` and commit it")

@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.run_list import write_run_list
 from paper_lib.agents.envs import MUJOCO_ENVS
 from paper_lib.pipeline.status import (
     available_runs,
@@ -141,6 +142,9 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     """Score the runs with a dataset where stale (all of them with `rescore`), then every table and figure, forced;
     nothing here steps an env."""
     print(summary(cfg))
+    path, changed = write_run_list(cfg)  # the per-run stages of dvc.yaml: the runs with a checkpoint
+    if changed:
+        print(f"  note: {path} now lists the {len(available_runs(cfg, 'checkpoint'))} runs with a checkpoint")
     for line in missing_lines(cfg, artifacts=("checkpoint", "dataset", "evaluation")):  # scores are made below
         print(f"  missing (not made here): {line}")
     runs = available_runs(cfg, "checkpoint", "dataset")
@@ -178,7 +182,11 @@ def retrain(cfg: RunConfig) -> None:
     """Plain `dvc repro`: trains every missing or changed run of the profile, then everything downstream."""
     print(f"{summary(cfg)}\nretraining: `dvc repro` trains every run whose checkpoint is missing or whose "
           "hyperparameters changed; at the paper's budget that is hours per run")
-    _dvc(["repro"])
+    write_run_list(cfg, cfg.runs())  # every run of the profile gets its stages while it trains
+    try:
+        _dvc(["repro"])
+    finally:
+        write_run_list(cfg)  # then only the runs that landed keep them
     _write_status(cfg)
 
 

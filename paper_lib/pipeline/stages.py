@@ -1,7 +1,9 @@
-"""Pipeline stage commands that are not notebooks (DVC calls them; see dvc.yaml).
+"""Pipeline stages of one run that are not notebooks (DVC calls them; see dvc.yaml).
 
-    python -m paper_lib.pipeline.stages train HalfCheetah-v5 masksembles 0     # resumes from its last resume point
     python -m paper_lib.pipeline.stages collect HalfCheetah-v5 masksembles 0
+
+`train_stage` trains a run of the active profile (notebook 1, the `train` stage, calls it); the one training
+command line is `python -m paper_lib.agents.training` (any run, the packaged hyperparameters and `--hp` edits).
 """
 
 from __future__ import annotations
@@ -75,27 +77,15 @@ def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description="Pipeline stages that are not notebooks.")
-    sub = parser.add_subparsers(dest="stage", required=True)
-    train = sub.add_parser("train", help="train (or resume) one run of the active profile")
-    train.add_argument("env_id")
-    train.add_argument("method")
-    train.add_argument("seed", type=int)
-    train.add_argument("--threads", type=int, default=1, help="torch threads")
-    collect = sub.add_parser("collect", help="collect one run's ID and OOD states")
-    collect.add_argument("env_id")
-    collect.add_argument("method")
-    collect.add_argument("seed", type=int)
+    parser = argparse.ArgumentParser(description="Collect one run's ID and OOD states (the `collect` stage).")
+    parser.add_argument("stage", choices=["collect"], help="the stage (training: notebook 1 or paper_lib.agents.training)")
+    parser.add_argument("env_id")
+    parser.add_argument("method")
+    parser.add_argument("seed", type=int)
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args()
     try:  # a bad input is one line naming the problem, not a traceback
-        cfg = load_run_config(args.params)
-        if args.stage == "train":
-            if args.threads < 1:
-                raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
-            print(train_stage(cfg, args.env_id, args.method, args.seed, torch_threads=args.threads))
-        else:
-            print(collect_run(cfg, args.env_id, args.method, args.seed))
+        print(collect_run(load_run_config(args.params), args.env_id, args.method, args.seed))
     except (ValueError, FileNotFoundError) as err:
         parser.exit(2, f"error: {err}\n")
 

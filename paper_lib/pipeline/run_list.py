@@ -1,0 +1,85 @@
+"""runs.yaml: the runs of the active profile that have stages in dvc.yaml.
+
+dvc.yaml makes the per-run `train`, `collect`, `evaluate` and `score` stages for the runs listed here, not for the
+profile's whole matrix: a run not trained yet has no stage, so `dvc repro` on a fresh clone trains, collects and
+evaluates nothing. The list is the runs with a committed checkpoint; `make retrain` adds the profile's missing runs
+while it trains them, and the main command brings the list back in line with the checkpoints on disk.
+
+    python -m paper_lib.pipeline.run_list                          # the committed runs of the active profile
+    python -m paper_lib.pipeline.run_list --add HalfCheetah-v5 baseline 0   # ask for a run to train (`dvc repro`)
+    python -m paper_lib.pipeline.run_list --all                    # every run of the profile (what `make retrain` trains)
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import yaml
+
+from paper_lib.common.io import write_text_atomic
+from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.status import Run, available_runs, stage_suffix
+
+RUN_LIST = "runs.yaml"
+KEY = "committed_runs"
+HEADER = """\
+# The runs of the active profile that have train, collect, evaluate and score stages in dvc.yaml: those with a
+# committed checkpoint, so `dvc repro` on a fresh clone trains nothing (paper_lib/pipeline/run_list.py).
+# Written by the main command and `make retrain`; ask for a run to train with
+#   python -m paper_lib.pipeline.run_list --add <env> <method> <seed>
+"""
+
+
+def run_list_text(cfg: RunConfig, runs: list[Run]) -> str:
+    """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes)."""
+    order = {run: i for i, run in enumerate(cfg.runs())}
+    listed = sorted(set(runs), key=lambda run: order.get(run, len(order)))
+    entries = "".join(f"  {stage_suffix(*run)}: {{env: {run[0]}, method: {run[1]}, seed: {run[2]}}}\n"
+                      for run in listed)
+    return f"{HEADER}profile: {cfg.profile}\n{KEY}:{' {}' if not listed else ''}\n{entries}"
+
+
+def read_run_list(root: str | Path = ".") -> tuple[str | None, list[Run]]:
+    """(profile, runs) of runs.yaml; (None, []) where there is none yet."""
+    path = Path(root) / RUN_LIST
+    if not path.is_file():
+        return None, []
+    data = yaml.safe_load(path.read_text()) or {}
+    runs = data.get(KEY) or {}
+    return data.get("profile"), [(entry["env"], entry["method"], int(entry["seed"])) for entry in runs.values()]
+
+
+def write_run_list(cfg: RunConfig, extra: list[Run] = ()) -> tuple[Path, bool]:
+    """Write runs.yaml with the runs that have a checkpoint plus `extra`; (path, whether its bytes changed)."""
+    path = cfg.root / RUN_LIST
+    text = run_list_text(cfg, [*available_runs(cfg, "checkpoint"), *extra])
+    changed = not path.is_file() or path.read_text() != text
+    if changed:
+        write_text_atomic(path, text)
+    return path, changed
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--add", nargs=3, action="append", default=[], metavar=("ENV", "METHOD", "SEED"),
+                        help="a run of the profile to give stages, to train it with `dvc repro` (repeatable)")
+    parser.add_argument("--all", action="store_true", help="every run of the profile")
+    parser.add_argument("--params", default="params.yaml")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_run_config(args.params)
+        profile_runs = cfg.runs()
+        asked = [(env, method, int(seed)) for env, method, seed in args.add]
+        unknown = [run for run in asked if run not in profile_runs]
+        if unknown:
+            raise ValueError(f"{unknown} are not runs of profile {cfg.profile!r} (its envs {cfg.envs}, methods "
+                             f"{cfg.methods}, seeds {cfg.seeds}); edit params.yaml's run section or pick one of those")
+        path, _ = write_run_list(cfg, profile_runs if args.all else asked)
+    except ValueError as err:
+        parser.exit(2, f"error: {err}\n")
+    print(f"{path}: {len(read_run_list(cfg.root)[1])} runs with stages")
+
+
+if __name__ == "__main__":
+    main()
