@@ -230,7 +230,7 @@ def test_four_of_five_combinations_the_rule_and_the_queue(tmp_path, capsys):
     assert ens.member_command(cfg, "Walker2d-v5", 3, "/work/resume") == (
         "env PAPER_LIB_RESUME_ROOT=/work/resume .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 3 "
         f"{tmp_path}/results/paper/independent/checkpoints/Walker2d-v5/baseline/seed3 --timesteps 250000 "
-        "--hp algo.n_epochs=40")
+        f"--hp algo.n_epochs={4 * hps['Walker2d-v5']['algo']['n_epochs']}")
     assert ens.run_command(cfg, "own", "Swimmer-v5", "ensemble", 2) == (
         f".venv/bin/python -m paper_lib.agents.training Swimmer-v5 ensemble 2 {tmp_path}/results/paper/own/checkpoints/"
         "Swimmer-v5/ensemble/seed2 --assignment own")

@@ -47,12 +47,51 @@ class Checkpoint:
         return pd.read_csv(self.folder / "training_curve.csv")
 
 
+#: Algorithms paper_lib does not load, by the SB3 / sb3-contrib module their policy class lives in.
+FOREIGN_POLICY_MODULES = {"dqn": "DQN", "sac": "SAC", "td3": "TD3 (or DDPG)", "qrdqn": "QR-DQN", "tqc": "TQC",
+                          "crossq": "CrossQ", "ars": "ARS"}
+#: Settings only off-policy algorithms (a replay buffer) save.
+OFF_POLICY_KEYS = ("replay_buffer_class", "buffer_size", "learning_starts")
+
+
+def foreign_algorithm(data: dict[str, Any]) -> str | None:
+    """The algorithm that saved this model data when it is not one paper_lib loads, else None.
+
+    DQN saves `n_steps` too, so without this a DQN zip passes for A2C and fails deep inside SB3;
+    the policy class's module and the replay-buffer settings tell the algorithms apart.
+    """
+    policy_class = data.get("policy_class")
+    name = getattr(policy_class, "__name__", None)
+    package, _, rest = str(getattr(policy_class, "__module__", "")).partition(".")
+    if package in ("stable_baselines3", "sb3_contrib") and rest.split(".")[0] in FOREIGN_POLICY_MODULES:
+        return FOREIGN_POLICY_MODULES[rest.split(".")[0]]
+    for prefix in ("Recurrent", "Maskable"):  # sb3-contrib's PPO variants save PPO's settings
+        if name is not None and name.startswith(prefix):
+            return f"{prefix}PPO"
+    if any(key in data for key in OFF_POLICY_KEYS):
+        return f"an off-policy algorithm (policy {name or 'unknown'})"
+    return None
+
+
+def check_loadable_algorithm(data: dict[str, Any], zip_path: Path) -> None:
+    """One clear error for a zip of an algorithm paper_lib does not load, before SB3 fails on it."""
+    foreign = foreign_algorithm(data)
+    if foreign is not None:
+        raise ValueError(f"{zip_path} holds a model paper_lib cannot load, got {foreign}; paper_lib loads "
+                         f"{', '.join(name.upper() for name in sorted(ALGORITHMS))} models (algo one of "
+                         f"{sorted(ALGORITHMS)}): load this one with its own SB3 class, or train the agent "
+                         "with one of those")
+
+
 def zip_algorithm(data: dict[str, Any]) -> str | None:
     """Which of paper_lib's algorithms saved this model data, from the settings only it has.
 
     SB3 saves an algorithm's attributes, not its class: TRPO alone has `cg_max_steps`, PPO alone
-    (of the three) `clip_range` and `n_epochs`, and A2C has `n_steps` but neither.
+    (of the three) `clip_range` and `n_epochs`, and A2C has `n_steps` but neither. None for
+    any other algorithm (`foreign_algorithm` names it).
     """
+    if foreign_algorithm(data) is not None:
+        return None
     if "cg_max_steps" in data:
         return "trpo"
     if "clip_range" in data and "n_epochs" in data:
@@ -187,6 +226,7 @@ def load_checkpoint(folder: str | Path, env_id: str | None = None, method: str |
         raise ValueError(f"cannot load {zip_path} ({type(err).__name__}: {err}); {retrain}") from None
     if not isinstance(data, dict):
         raise ValueError(f"cannot load {zip_path} (it holds no model data); {retrain}")
+    check_loadable_algorithm(data, zip_path)
     wrong = _mismatches(policy_identity(data), zip_algorithm(data), data, config)
     if wrong:
         raise ValueError(f"{zip_path} does not belong to {folder / 'config.json'}: the model has {'; '.join(wrong)}. "

@@ -12,6 +12,7 @@ from typing import Any
 
 import gymnasium as gym
 import mujoco
+import numpy as np
 from stable_baselines3.common.env_util import make_atari_env, make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecFrameStack, VecNormalize
 
@@ -111,6 +112,20 @@ def make_single_env(env_id: str, **gym_kwargs: Any) -> gym.Env:
     return gym.make(env_id, **{**default_env_kwargs(env_id), **gym_kwargs})
 
 
+def check_env_seed(seed: Any, where: str = "make_env") -> int | None:
+    """`seed` as a plain int (gymnasium refuses numpy integers such as the np.int64 it hands out itself).
+
+    Booleans pass for ints in Python and are refused; None leaves the envs unseeded, as in SB3.
+    """
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"{where}: seed must be an integer >= 0, got {seed!r}; pass e.g. seed=0")
+    if seed < 0:
+        raise ValueError(f"{where}: seed must be an integer >= 0, got {seed!r}; numpy refuses negative seeds")
+    return int(seed)
+
+
 def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
              env_kwargs: dict[str, Any] | None = None, normalize_reward: bool = False,
              gamma: float = 0.99, env_processes: bool = False) -> VecEnv:
@@ -124,6 +139,7 @@ def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
     (VecNormalize, with the algorithm's ``gamma`` as rl-baselines3-zoo passes it); evaluation
     always undoes it (`Checkpoint.env`), so reported rewards are the env's own.
     """
+    seed = check_env_seed(seed)
     vec_env_cls = SubprocVecEnv if env_processes else DummyVecEnv
     if is_atari(env_id):
         register_atari()

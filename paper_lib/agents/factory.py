@@ -8,6 +8,7 @@ from importlib import resources
 from typing import Any
 
 import numpy as np
+import torch as th
 import yaml
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -17,7 +18,7 @@ from torch import nn
 
 from paper_lib.agents.envs import is_atari, make_env
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
-from paper_lib.methods.groups import MemberGroupVecEnv, check_member_layout
+from paper_lib.methods.groups import MemberGroupVecEnv, check_groups_match, check_member_layout
 from paper_lib.methods.layers import validate_masksembles
 from paper_lib.methods.networks import METHODS, MemberSpec
 from paper_lib.methods.policy import INFERENCE_MODES, MemberActorCriticPolicy
@@ -99,6 +100,33 @@ def check_number(value: Any, name: str, where: str, low: float | None = None, hi
 def check_seed(seed: Any, where: str = "make_agent") -> int:
     """Seeds are integers >= 0 (numpy refuses negative ones; '0' is a string, not a seed)."""
     return check_integer(seed, "seed", where, minimum=0)
+
+
+def device_available(device: th.device) -> bool:
+    """Whether torch can use `device` here; SB3 itself would quietly train a missing CUDA device on the CPU."""
+    if device.type == "cpu":
+        return True
+    if device.type == "cuda":
+        return th.cuda.is_available() and (device.index is None or device.index < th.cuda.device_count())
+    backend = getattr(th.backends, device.type, None) or getattr(th, device.type, None)
+    is_available = getattr(backend, "is_available", None)
+    return bool(is_available()) if callable(is_available) else True  # no probe: torch itself will say
+
+
+def check_device(device: Any, where: str = "make_agent") -> Any:
+    """An explicit device must exist ("auto" picks the GPU when there is one, else the CPU); returned unchanged."""
+    if isinstance(device, str) and device == "auto":
+        return device
+    try:
+        parsed = th.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"{where}: device must be a torch device such as 'cpu', 'cuda' or 'auto', got {device!r}; "
+                         "use device='auto' to take the GPU when there is one") from None
+    if not device_available(parsed):
+        gpus = th.cuda.device_count() if th.cuda.is_available() else 0
+        raise ValueError(f"{where}: device {str(parsed)!r} is not available on this machine ({gpus} CUDA device(s)), "
+                         f"got device={device!r}; use device='cpu', or 'auto' to take the GPU when there is one")
+    return device
 
 
 def _check_mapping(value: Any, name: str, where: str) -> dict[str, Any]:
@@ -269,7 +297,8 @@ def make_agent(
         raise ValueError(f"unknown inference mode {inference!r}; use one of {INFERENCE_MODES}")
     if not isinstance(env_id, str):
         raise ValueError(f"env_id must be a Gymnasium id string such as 'HalfCheetah-v5', got {env_id!r}")
-    check_seed(seed)
+    seed = check_seed(seed)  # a plain int from here on: gymnasium refuses numpy integers, json too
+    check_device(device)
     hp = paper_hyperparameters(env_id) if hyperparameters is None else copy.deepcopy(hyperparameters)
     validate_hyperparameters(hp, env_id)
     check_member_values(dict(n_members=n_members, dropout_p=dropout_p, masksembles_scale=masksembles_scale), "make_agent",
@@ -312,6 +341,8 @@ def make_agent(
                        env_processes=env_processes)
     elif env.num_envs != n_envs:
         raise ValueError(f"the given env has {env.num_envs} envs but n_envs={n_envs}")
+    elif method != "baseline":
+        check_groups_match(env, n_members)
     if config["linear_lr_decay"]:
         algo_kwargs["learning_rate"] = LinearSchedule(algo_kwargs["learning_rate"], 0.0, 1.0)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -18,7 +19,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import is_image_space
 
 from paper_lib.measures import definitions as measures
-from paper_lib.methods.policy import MemberActorCriticPolicy, combine_actions, draw_state_seeds
+from paper_lib.methods.policy import MemberActorCriticPolicy, check_finite, combine_actions, draw_state_seeds
 
 
 @dataclass
@@ -51,10 +52,16 @@ def check_observations(policy: ActorCriticPolicy, observations: np.ndarray, *, s
         raise ValueError(f"{what} have shape {obs.shape} but this policy takes {expected} with N >= 1 "
                          f"(its observation space is {space}); pass states of the env it was trained on, "
                          "stacked along a first axis")
-    if np.issubdtype(obs.dtype, np.number) and not np.issubdtype(obs.dtype, np.integer) and not np.isfinite(obs).all():
-        bad = int((~np.isfinite(obs.reshape(len(obs), -1))).any(axis=1).sum())
-        raise ValueError(f"{what} hold NaN or inf in {bad} of {len(obs)} states; drop or fix those states first")
+    check_finite(obs, what=what)  # NaN, inf, or a float64 that is inf as float32
     return obs, vectorized
+
+
+def check_batch_size(batch_size: Any) -> int:
+    """States per forward pass: a positive integer (0 would loop forever or return nothing)."""
+    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer (states per forward pass), got {batch_size!r}; "
+                         "use e.g. batch_size=1024")
+    return int(batch_size)
 
 
 def _state_seeds(policy: ActorCriticPolicy, n: int, seed: int | None) -> np.ndarray | None:
@@ -94,6 +101,7 @@ def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_si
     state) from per-state seeds drawn from `seed` (torch's global RNG when None).
     """
     discrete = isinstance(policy.action_space, spaces.Discrete)
+    batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     values, params = [], []
     for pi, vf in _batches(policy, obs, batch_size, seed):
@@ -121,6 +129,7 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
     `seed` fixes the MC methods' samples (see `member_outputs`). The measures are computed in
     torch on each batch's member outputs (`measures.torch_measures`); only they become numpy.
     """
+    batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     discrete = isinstance(policy.action_space, spaces.Discrete)
     k = policy.n_members if isinstance(policy, MemberActorCriticPolicy) else 1
@@ -150,6 +159,7 @@ def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_s
     (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
     MC methods sample per (member, state), seeded like `member_outputs`.
     """
+    batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     seeds = _state_seeds(policy, len(obs), seed)
     chunks = []

@@ -9,6 +9,9 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 #: Attribute carried by a terminal observation (and the tensor made from it) naming the
 #: member whose env group produced it.
 MEMBER_TAG = "paper_lib_member"
+#: Attribute carried beside MEMBER_TAG: the number of member groups the envs were split into, so a
+#: policy with another k can refuse the tag instead of bootstrapping from the wrong member.
+GROUPS_TAG = "paper_lib_member_groups"
 
 
 def check_member_layout(n_envs: int, n_members: int, batch_size: int | None = None, n_steps: int | None = None) -> None:
@@ -44,12 +47,34 @@ class TaggedObservation(np.ndarray):
 
     def __array_finalize__(self, obj) -> None:
         setattr(self, MEMBER_TAG, getattr(obj, MEMBER_TAG, None))
+        setattr(self, GROUPS_TAG, getattr(obj, GROUPS_TAG, None))
 
 
-def tag_observation(obs: np.ndarray, member: int) -> TaggedObservation:
+def tag_observation(obs: np.ndarray, member: int, n_groups: int | None = None) -> TaggedObservation:
+    """`obs` tagged with its member (and, from MemberGroupVecEnv, how many groups the envs form)."""
     tagged = np.asarray(obs).view(TaggedObservation)
     setattr(tagged, MEMBER_TAG, int(member))
+    setattr(tagged, GROUPS_TAG, None if n_groups is None else int(n_groups))
     return tagged
+
+
+def member_groups(venv: VecEnv) -> int | None:
+    """k of the outermost MemberGroupVecEnv in `venv`'s wrapper chain, or None if there is none."""
+    while isinstance(venv, VecEnvWrapper):
+        if isinstance(venv, MemberGroupVecEnv):
+            return venv.n_members
+        venv = venv.venv
+    return None
+
+
+def check_groups_match(venv: VecEnv, n_members: int) -> None:
+    """Refuse an env already split into member groups for another k: its truncated episodes would
+    bootstrap from the wrong members, silently."""
+    groups = member_groups(venv)
+    if groups is not None and groups != n_members:
+        raise ValueError(f"the given env is a MemberGroupVecEnv for {groups} members, got n_members={n_members}; "
+                         f"pass the unwrapped env (make_agent wraps it for k={n_members}) or "
+                         f"MemberGroupVecEnv(venv, {n_members})")
 
 
 class MemberGroupVecEnv(VecEnvWrapper):
@@ -73,5 +98,5 @@ class MemberGroupVecEnv(VecEnvWrapper):
         for idx, info in enumerate(infos):
             if info.get("terminal_observation") is not None:
                 member = member_of_env(idx, self.num_envs, self.n_members)
-                info["terminal_observation"] = tag_observation(info["terminal_observation"], member)
+                info["terminal_observation"] = tag_observation(info["terminal_observation"], member, self.n_members)
         return obs, rewards, dones, infos

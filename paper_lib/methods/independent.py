@@ -247,6 +247,23 @@ def _member_normalizer(model: BaseAlgorithm, normalizer: VecNormalize | None, j:
     return normalizer
 
 
+def same_parameters(a: ActorCriticPolicy, b: ActorCriticPolicy) -> bool:
+    """Whether two policies hold equal parameters (and buffers): the same agent, however it was loaded."""
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(
+        sa[key].shape == sb[key].shape and th.equal(sa[key].cpu(), sb[key].cpu()) for key in sa)
+
+
+def check_distinct_members(members: Sequence[BaseAlgorithm]) -> None:
+    """Refuse a member given twice: identical members agree everywhere, so every spread (value_std, ...) is 0."""
+    for j in range(1, len(members)):
+        for i in range(j):
+            if members[i] is members[j] or same_parameters(members[i].policy, members[j].policy):
+                raise ValueError(f"members {i} and {j} have identical parameters, got the same agent twice; an "
+                                 "ensemble of copies reports zero uncertainty (value_std 0): assemble separately "
+                                 "trained agents (different seeds)")
+
+
 def assemble_ensemble(members: Sequence[BaseAlgorithm], normalizers: Sequence[VecNormalize | None] | None = None,
                       inference: str = "vote", member_seeds: Sequence[int] | None = None,
                       config: dict[str, Any] | None = None) -> PPO:
@@ -282,6 +299,7 @@ def assemble_ensemble(members: Sequence[BaseAlgorithm], normalizers: Sequence[Ve
     if any(normalized) and not all(normalized):
         raise ValueError(f"members {[j for j, n in enumerate(normalized) if n]} normalize observations and the others "
                          "do not; assemble members trained with one recipe")
+    check_distinct_members(members)
     seeds = list(member_seeds) if member_seeds is not None else [m.seed for m in members]
     policy_kwargs = dict(member_kwargs=reference, n_members=len(members), normalize_obs=all(normalized),
                          member_seeds=[int(s) if s is not None else -1 for s in seeds], inference=inference)

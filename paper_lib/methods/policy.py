@@ -31,7 +31,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from torch import nn
 
 from paper_lib.methods import inference as lean
-from paper_lib.methods.groups import MEMBER_TAG
+from paper_lib.methods.groups import GROUPS_TAG, MEMBER_TAG
 from paper_lib.methods.layers import has_stochastic_layers, per_state_masks
 from paper_lib.methods.networks import MemberActorCritic, MemberMLP, MemberNatureCNN, MemberSpec
 
@@ -44,6 +44,30 @@ TIE_RULES = ("mean_prob", "random")
 VOTE_SAMPLING = ("average", "member_votes")
 #: Largest per-state seed; seeds are drawn from torch's RNG (or a seeded generator) below it.
 _SEED_BOUND = 2**62
+#: The largest float32: the networks compute in float32, so a wider float beyond it becomes inf there.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def all_finite(obs: np.ndarray) -> bool:
+    """Whether every value stays finite as the float32 the networks compute in (one pass: `predict` runs it).
+
+    Integer dtypes (images) are always finite; a float64 beyond FLOAT32_MAX is not (inf once cast).
+    """
+    if obs.dtype.kind != "f" or obs.size == 0:
+        return True
+    if obs.dtype.itemsize <= 4:
+        return bool(np.isfinite(obs).all())
+    return bool(np.abs(obs).max() <= FLOAT32_MAX)  # False for NaN as well
+
+
+def check_finite(obs: np.ndarray, batched: bool = True, what: str = "observations") -> None:
+    """One ValueError naming how many states hold NaN or inf (as float32); the networks would return NaN."""
+    if all_finite(obs):
+        return
+    rows = obs.reshape(len(obs), -1) if batched and obs.ndim > 0 else obs.reshape(1, -1)
+    bad = int((~(np.abs(rows) <= FLOAT32_MAX)).any(axis=1).sum())
+    raise ValueError(f"{what} hold NaN or inf in {bad} of {len(rows)} states (a float beyond float32's range, "
+                     "|x| > 3.4e38, is inf to the network); drop or fix those states first")
 
 
 def draw_state_seeds(n: int, generator: th.Generator | None = None) -> np.ndarray:
@@ -152,8 +176,7 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         """
         if mode not in INFERENCE_MODES:
             raise ValueError(f"unknown inference mode {mode!r}; use one of {INFERENCE_MODES}")
-        if member is not None and not 0 <= member < self.n_members:
-            raise ValueError(f"inference_member={member} is not in [0, {self.n_members - 1}]")
+        member = self._checked_member(mode, member)
         if ties is not None and ties not in TIE_RULES:
             raise ValueError(f"unknown tie rule {ties!r}; use one of {TIE_RULES}")
         if vote_sampling is not None and vote_sampling not in VOTE_SAMPLING:
@@ -165,10 +188,26 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         if vote_sampling is not None:
             self._inference_vote_sampling.fill_(VOTE_SAMPLING.index(vote_sampling))
 
+    def _checked_member(self, mode: str, member: Any) -> int | None:
+        """`member` as an int in [0, k) for "single" (or None: a random member); only "single" takes one,
+        so a member given with vote / average would be silently ignored."""
+        if member is None:
+            return None
+        if mode != "single":
+            raise ValueError(f"inference mode {mode!r} combines all members and takes no member, got "
+                             f"member={member!r}; drop member= or use set_inference('single', member={member!r})")
+        if isinstance(member, bool) or not isinstance(member, (int, np.integer)):
+            raise ValueError(f"inference member must be an integer index in [0, {self.n_members - 1}], got "
+                             f"{member!r}; pass e.g. member=0")
+        if not 0 <= member < self.n_members:
+            raise ValueError(f"inference_member={member} is not in [0, {self.n_members - 1}]; this policy has "
+                             f"k={self.n_members} members")
+        return int(member)
+
     @property
     def inference(self) -> tuple[str, int | None]:
-        member = int(self._inference_member)
-        return INFERENCE_MODES[int(self._inference_mode)], (None if member < 0 else member)
+        mode, member = INFERENCE_MODES[int(self._inference_mode)], int(self._inference_member)
+        return mode, (None if member < 0 or mode != "single" else member)  # only "single" uses a member
 
     @property
     def inference_options(self) -> dict[str, str]:
@@ -226,19 +265,33 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
 
     # --- truncated-episode bootstrap ----------------------------------------------------
     def obs_to_tensor(self, observation):
+        """SB3's, refusing non-finite states (`predict` would return NaN actions) and keeping a member tag."""
+        array = observation if isinstance(observation, np.ndarray) else (
+            np.asarray(observation) if isinstance(observation, (list, tuple)) else None)
+        if array is not None and not all_finite(array):
+            check_finite(array, batched=array.ndim > len(self.observation_space.shape or ()))
         member = getattr(observation, MEMBER_TAG, None)
         tensor, vectorized = super().obs_to_tensor(observation)
         if member is not None:
             setattr(tensor, MEMBER_TAG, member)
+            setattr(tensor, GROUPS_TAG, getattr(observation, GROUPS_TAG, None))
         return tensor, vectorized
 
     def predict_values(self, obs: th.Tensor) -> th.Tensor:
         member = getattr(obs, MEMBER_TAG, None)
         if member is None:
             return super().predict_values(obs)
+        self._check_groups(getattr(obs, GROUPS_TAG, None))
         features = super(ActorCriticPolicy, self).extract_features(obs, self.vf_features_extractor)
         _, vf = self.mlp_extractor.members(features, "all", actor=False)
         return vf[member]
+
+    def _check_groups(self, n_groups: int | None) -> None:
+        """A MemberGroupVecEnv made for another k tags episodes with the wrong members; refuse it."""
+        if n_groups is not None and n_groups != self.n_members:
+            raise ValueError(f"the env's MemberGroupVecEnv splits its envs into {n_groups} member groups, got a "
+                             f"policy with k={self.n_members} members; wrap the env with "
+                             f"MemberGroupVecEnv(venv, {self.n_members}) (make_agent does)")
 
 
 def combine_actions(pi: th.Tensor, policy: ActorCriticPolicy, mode: str, member: int | None,
