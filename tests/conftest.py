@@ -15,3 +15,17 @@ TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
 @pytest.fixture
 def tiny_overrides() -> dict:
     return dict(TINY)
+
+
+#: Modules whose tests train, run notebooks or the pipeline, or replay episodes (a minute and more each):
+#: `pytest -m "not slow"` (the inner loop, docs/pipeline.md) leaves them to the whole suite, which CI runs.
+SLOW_MODULES = {"test_pipeline", "test_faults", "test_guard", "test_study", "test_notebooks", "test_independent_ensembles",
+                "test_bench", "test_spawn", "test_value_level", "test_door_checks_entry", "test_train_queue",
+                "test_gpu_runs", "test_atari_head", "test_ood_atari", "test_evaluate_agent", "test_collect",
+                "test_train", "test_training_numerics", "test_bad_inputs", "test_ood_coverage", "test_verify"}
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    for item in items:
+        if item.module.__name__.rsplit(".", 1)[-1] in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)

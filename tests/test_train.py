@@ -19,6 +19,7 @@ from torch import nn
 
 from paper_lib import make_agent, member_outputs
 from paper_lib.agents.training import apply_hp_edits, resume_dir_for, train_run
+from paper_lib.common import io
 from paper_lib.common.io import atomic_dir, recover_dir
 from paper_lib.methods.layers import MemberLinear
 
@@ -107,8 +108,9 @@ def test_reward_normalization_scales_training_rewards_only(tmp_path):
     _, reward, _, _ = saved.step(np.zeros((1, *saved.action_space.shape), dtype=np.float32))
     raw = saved.get_original_reward()
     assert not saved.norm_reward and reward[0] == raw[0], "evaluation reports the env's own reward"
-    plain = make_agent("ppo", "baseline", "Walker2d-v5", 0, n_envs=2, **TINY).get_vec_normalize_env()
-    assert not plain.norm_reward, "without the setting, observations only (the committed runs' recipe)"
+    off = apply_hp_edits(paper_hyperparameters("Walker2d-v5"), ["normalize_reward=false"])
+    plain = make_agent("ppo", "baseline", "Walker2d-v5", 0, hyperparameters=off, n_envs=2, **TINY).get_vec_normalize_env()
+    assert plain.norm_obs and not plain.norm_reward, "with the setting off, observations only (the printed recipe)"
 
 
 def test_atari_checkpoints_store_float16_weights_and_load_as_float32(tmp_path):
@@ -146,7 +148,9 @@ def test_atomic_dir_keeps_the_old_folder_when_writing_fails(tmp_path):
     with atomic_dir(target) as tmp:
         (tmp / "a").write_text("new")
     assert (target / "a").read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["ckpt"]
-    # a swap interrupted between two renames (file systems without an atomic exchange)
+    # a swap interrupted between two renames (file systems without an atomic exchange): the swap marks the old
+    # copy as its own before renaming it, and only a marked copy is ever put back
+    io._mark(target)
     os.rename(target, tmp_path / ".ckpt.old")
     recover_dir(target)
     assert (target / "a").read_text() == "new"

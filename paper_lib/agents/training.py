@@ -38,12 +38,14 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from paper_lib.agents.envs import is_atari
 from paper_lib.agents.factory import HP_OPTIONAL, config_value, make_agent
-from paper_lib.common.io import atomic_dir, write_json_atomic
+from paper_lib.common.io import DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic
 from paper_lib.common.provenance import machine, package_versions
 
 RESUME_ROOT_ENV = "PAPER_LIB_RESUME_ROOT"
 #: Default spacing of resume points, in environment steps.
 RESUME_EVERY = 50_000
+#: Files that make a folder one of ours: a checkpoint (config.json, model.zip) or a resume point (state.pkl).
+OWN_FILES = ("config.json", "model.zip", "state.pkl")
 
 
 class TrainingCurve(BaseCallback):
@@ -206,23 +208,67 @@ def check_budget(total_timesteps: Any) -> int:
     return int(total_timesteps)
 
 
+def check_run_folder(folder: Path, what: str) -> None:
+    """Training replaces `folder` whole at its end: refuse a file there, or someone else's folder, before training."""
+    check_replaceable_dir(folder, what)
+    if folder.is_dir() and any(folder.iterdir()) and not any((folder / name).is_file() for name in OWN_FILES):
+        raise DestinationError(f"{what} {folder} holds files but no checkpoint or resume point (none of "
+                               f"{', '.join(OWN_FILES)}), and training would replace it whole; give a new or empty "
+                               "folder (it was left as it is)")
+
+
+def finished_budget(out_dir: Path) -> int | None:
+    """The budget (total_timesteps) of the finished run in `out_dir`, or None where there is none to read."""
+    try:
+        budget = json.loads((out_dir / "config.json").read_text()).get("total_timesteps")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return budget if isinstance(budget, int) and not isinstance(budget, bool) else None
+
+
+def check_finished_budget(out_dir: Path, steps: int) -> None:
+    """A resumed run asked for fewer steps than the finished run in `out_dir` would replace it with a smaller one."""
+    budget = finished_budget(out_dir)
+    if budget is not None and budget > steps:
+        raise ValueError(f"{out_dir} holds a finished run of {budget} steps, asked {steps}; use a new folder, or "
+                         "--no-resume (resume=False) to train a new run of the smaller budget in its place")
+
+
+def check_resume_budget(model: BaseAlgorithm, resume_dir: Path, resumed_from: int, steps: int) -> None:
+    """A resume point past the end of this budget would be exported as it is, labelled with the smaller budget."""
+    rollout = getattr(model, "n_steps", 1) * model.n_envs
+    stop = -(-steps // rollout) * rollout  # a run of `steps` ends at the first whole rollout at or after it
+    if resumed_from > stop:
+        raise ValueError(f"the resume point {resume_dir} holds {resumed_from} steps, asked {steps} (a run of that "
+                         f"budget stops at {stop}); use a new folder, or --no-resume (resume=False) to train afresh")
+
+
 def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: str = "ppo",
               total_timesteps: int | None = None, agent_kwargs: dict[str, Any] | None = None,
               torch_threads: int = 1, progress_bar: bool = False, resume: bool = True,
               resume_every: int = RESUME_EVERY, tensorboard: bool = False) -> Path:
-    """Train (continuing from the last resume point if `resume`) and write the checkpoint folder."""
+    """Train (continuing from the last resume point if `resume`) and write the checkpoint folder.
+
+    The destination is checked first (ValueError): a file or a foreign folder at `out_dir`, or, when
+    resuming, a run there already past this budget, is refused before any training.
+    """
     th.set_num_threads(torch_threads)
     out_dir = Path(out_dir)
     resume_dir = resume_dir_for(out_dir)
+    check_run_folder(out_dir, "checkpoint folder")
+    check_run_folder(resume_dir, "resume point folder")
     agent_kwargs = dict(agent_kwargs or {})
     if tensorboard:
         agent_kwargs.setdefault("tensorboard_log", str(resume_dir.parent / f".{out_dir.name}.tensorboard"))
     model = make_agent(algo, method, env_id, seed, **agent_kwargs)
     steps = check_budget(total_timesteps if total_timesteps is not None else model.paper_lib_config["total_timesteps"])
     rows, elapsed, resumed_from, segments = [], 0.0, 0, []
+    if resume:
+        check_finished_budget(out_dir, steps)
     if resume and (resume_dir / "state.pkl").is_file():
         state = load_resume_point(model, resume_dir)
         rows, elapsed, resumed_from = state["rows"], state["wall_seconds"], state["num_timesteps"]
+        check_resume_budget(model, resume_dir, resumed_from, steps)
         segments = state.get("segments") or [{"from_step": 0, "to_step": resumed_from, "device": "not recorded"}]
         print(f"resuming {env_id} {method} seed {seed} from step {resumed_from} ({resume_dir})", file=sys.stderr)
     where = {"device": str(model.device), "gpu": gpu_name(model.device),

@@ -1,16 +1,22 @@
-"""Atomic file writing.
+"""Atomic file writing, and the checks that keep a write from destroying what is at its destination.
 
 Tables, figures and checkpoints are read by later pipeline stages; a run that
 crashes mid-write must never leave a half-written file that looks finished.
-Every writer here writes to a temporary file in the target's folder (same file
-system, so ``os.replace`` is atomic) and renames it onto the target only after
-the write succeeded.
+Every writer here writes into a temporary folder beside the target (same file
+system, so ``os.replace`` is atomic) and moves the result onto the target only
+after the write succeeded.
+
+Every temporary folder holds a marker file (`TEMP_MARKER`): a folder left by a
+killed writer is deleted (or put back) only when it carries the marker, so a
+user's own `.<name>.something` beside a target is never touched.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -25,27 +31,127 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 _FILE_MODE = 0o666 & ~_UMASK
 
+#: The file inside every temporary folder this module makes: it proves the folder is ours to delete.
+TEMP_MARKER = ".paper_lib_temp"
+_MARKER_TEXT = "a temporary folder of paper_lib.common.io; deleted when its writer is done or was killed\n"
+
+
+class DestinationError(ValueError):
+    """A write destination that the write would destroy, or that cannot hold the output."""
+
+
+# ----------------------------------------------------------------------------- temporary folders
+
+
+def _mark(folder: Path) -> None:
+    """Put the marker into `folder`: from now on `is_ours` may delete or restore it."""
+    (folder / TEMP_MARKER).write_text(_MARKER_TEXT)
+
+
+def is_ours(entry: str | os.PathLike[str]) -> bool:
+    """Whether `entry` is a temporary folder this module made (a real folder holding the marker with its text)."""
+    entry = Path(entry)
+    marker = entry / TEMP_MARKER
+    if entry.is_symlink() or not entry.is_dir() or marker.is_symlink() or not marker.is_file():
+        return False
+    try:
+        return marker.read_text() == _MARKER_TEXT
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _temp_dir(parent: Path, name: str) -> Path:
+    """A new marked temporary folder `.<name>.<random>.tmp` in `parent`."""
+    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{name}.", suffix=".tmp"))
+    _mark(tmp)
+    return tmp
+
+
+def _temp_pattern(name: str) -> re.Pattern[str]:
+    """The names `_temp_dir` and `_old_copy` give for `name` (mkdtemp's random part has no dot)."""
+    return re.compile(rf"\.{re.escape(name)}\.(?:[A-Za-z0-9_]+\.tmp|old)")
+
+
+# ----------------------------------------------------------------------------- door checks
+
+
+def _nearest_existing(path: Path) -> Path:
+    """`path` or its closest ancestor that exists (a link counts as existing, even a broken one)."""
+    path = Path(os.path.abspath(path))
+    while not os.path.lexists(path) and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_folder_destination(path: str | os.PathLike[str], what: str = "output folder") -> Path:
+    """Refuse a folder destination that cannot be written, before the work that would fill it.
+
+    `path` may be missing (it is created on writing) or an existing folder; a file there, a path under a file,
+    or a folder that cannot be written is one DestinationError naming it. Nothing is created here.
+    """
+    target = Path(path)
+    if os.path.lexists(target) and not target.is_dir():
+        kind = "a broken link" if target.is_symlink() else "a file"
+        raise DestinationError(f"{what} {target} is {kind}, not a folder; give a folder path "
+                               f"(the {kind.split()[-1]} was left as it is)")
+    existing = _nearest_existing(target)
+    if not existing.is_dir():
+        raise DestinationError(f"{what} {target} lies under {existing}, which is a file, not a folder; "
+                               "give a path under a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise DestinationError(f"{what} {target}: the folder {existing} is read-only; give a folder you can write "
+                               f"or make it writable (chmod u+w {existing})")
+    return target
+
+
+def check_file_destination(path: str | os.PathLike[str], what: str = "output file") -> Path:
+    """Refuse a file destination that is a folder, or where no file can be written (see check_folder_destination)."""
+    target = Path(path)
+    if target.is_dir():
+        raise DestinationError(f"{what} {target} is a folder, not a file; give a file path "
+                               "(the folder was left as it is)")
+    check_folder_destination(target.parent, f"the folder of {what} {target}")
+    return target
+
+
+def check_replaceable_dir(path: str | os.PathLike[str], what: str = "folder") -> Path:
+    """`atomic_dir` swaps folders: a file or a link at `path` would be moved aside and lost, so refuse it."""
+    target = Path(path)
+    if target.is_symlink():
+        raise DestinationError(f"{what} {target} is a link; replacing it would replace the link, not the folder it "
+                               "points to: give the real folder's path")
+    if target.exists() and not target.is_dir():
+        raise DestinationError(f"{what} {target} exists and is a file, not a folder; move the file away or give "
+                               "another path (the file was left as it is)")
+    return check_folder_destination(target, what)
+
+
+# ----------------------------------------------------------------------------- files
+
 
 @contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only if the block succeeds.
 
-    The temporary name keeps ``path``'s suffix, so libraries that choose a format
-    from the file extension (matplotlib, numpy) behave as for the real name.
-    On any exception the temporary file is deleted and the target is left untouched.
+    The temporary file has ``path``'s name inside a marked temporary folder, so libraries that choose
+    a format from the file extension (matplotlib, numpy) behave as for the real name. On any exception
+    the temporary folder is deleted and the target is left untouched.
     """
     target = Path(path)
+    if target.name == TEMP_MARKER:
+        raise DestinationError(f"{target}: {TEMP_MARKER} is the name of paper_lib's temporary-folder marker; "
+                               "give the file another name")
+    check_file_destination(target, "file")
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=f".tmp{target.suffix}")
-    os.close(fd)
-    tmp = Path(tmp_name)
+    stage = _temp_dir(target.parent, target.name)
+    tmp = stage / target.name
     try:
+        tmp.touch()  # an empty file, as mkstemp gave: writers may open it for update
         yield tmp
         os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
@@ -77,6 +183,39 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any, indent: int = 2) -
     return write_text_atomic(path, text)
 
 
+_FILES_STAGE = "paper_lib_files"
+
+
+@contextmanager
+def atomic_files(folder: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary folder; move every file written there into ``folder`` only if the block succeeds.
+
+    For a group of files that belong together (one run's outputs) in a folder that may hold other
+    files: a failure part-way (a full disk, a crashing writer) moves none of them, so ``folder`` never
+    holds one run's files beside another's. Existing files of other names are left alone.
+    """
+    target = check_folder_destination(folder)
+    target.mkdir(parents=True, exist_ok=True)
+    _remove_ours(target, _FILES_STAGE)
+    stage = _temp_dir(target, _FILES_STAGE)
+    try:
+        yield stage
+        written = sorted(p for p in stage.iterdir() if p.name != TEMP_MARKER)
+        for entry in written:  # every check before the first move: no move may fail half-way through the group
+            if not entry.is_file() or entry.is_symlink():
+                raise DestinationError(f"atomic_files moves files only; {entry.name} is not a file")
+            if (target / entry.name).is_dir():
+                raise DestinationError(f"{target / entry.name} is a folder; the file {entry.name} cannot replace it: "
+                                       "move the folder away (it was left as it is)")
+        for entry in written:
+            os.replace(entry, target / entry.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------- folders
+
+
 def _exchange(a: Path, b: Path) -> bool:
     """Swap two paths in one atomic step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
     import ctypes
@@ -98,29 +237,37 @@ def _old_copy(target: Path) -> Path:
 def recover_dir(path: str | os.PathLike[str]) -> None:
     """Undo a swap that a kill interrupted: put the complete old folder back if the target is missing.
 
-    Only needed where the file system cannot exchange two paths atomically (see `atomic_dir`).
+    Only needed where the file system cannot exchange two paths atomically (see `atomic_dir`), and only
+    for an old copy `atomic_dir` marked: a `.<name>.old` of the user's is never moved.
     """
     target = Path(path)
     old = _old_copy(target)
-    if not target.exists() and old.is_dir():
+    if not os.path.lexists(target) and is_ours(old):
         os.rename(old, target)
+        (target / TEMP_MARKER).unlink(missing_ok=True)
+
+
+def _remove_ours(parent: Path, name: str) -> list[Path]:
+    """Delete the marked temporary folders of `name` in `parent`; anything unmarked stays."""
+    if not parent.is_dir():
+        return []
+    pattern = _temp_pattern(name)
+    stale = sorted(entry for entry in parent.iterdir() if pattern.fullmatch(entry.name) and is_ours(entry))
+    for entry in stale:
+        shutil.rmtree(entry, ignore_errors=True)
+    return stale
 
 
 def remove_stale_temps(path: str | os.PathLike[str]) -> list[Path]:
-    """Delete temporary siblings (`.<name>.*`) that a killed writer of ``path`` left behind.
+    """Delete the temporary folders (`.<name>.<random>.tmp`, `.<name>.old`) a killed writer of ``path`` left.
 
-    Call it before writing ``path`` again, from the one process that writes it.
+    Only folders that carry the marker are deleted: a resume point, a log folder or a user's file of a
+    similar name is never touched. Call it before writing ``path`` again, from the one process that writes it.
+    Returns the deleted folders.
     """
-    import shutil
-
     target = Path(path)
     recover_dir(target)
-    stale = sorted(target.parent.glob(f".{target.name}.*")) if target.parent.is_dir() else []
-    for entry in stale:
-        if entry.name.endswith((".resume", ".tensorboard")):  # resume points and logs are not temporary
-            continue
-        shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
-    return stale
+    return _remove_ours(target.parent, target.name)
 
 
 @contextmanager
@@ -130,26 +277,42 @@ def atomic_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
     At every instant the complete old folder or the complete new one is at ``path``: the two
     are exchanged in one atomic rename (Linux), and the old one is deleted afterwards. Where
     the exchange is unsupported, the old folder is renamed to `.<name>.old` first and
-    `recover_dir` puts it back if a kill lands between the two renames.
+    `recover_dir` puts it back if a kill lands between the two renames. A file or a link at
+    ``path`` is refused (DestinationError) before anything is written: the swap would lose it.
     """
-    import shutil
-
     target = Path(path)
+    check_replaceable_dir(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(target)
-    tmp = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp"))
+    tmp = _temp_dir(target.parent, target.name)
     os.chmod(tmp, 0o777 & ~_UMASK)
     try:
         yield tmp
-        if not target.exists():
+        check_replaceable_dir(target)  # nothing else may have appeared there while the block ran
+        (tmp / TEMP_MARKER).unlink()  # the new folder goes in without it
+        if not os.path.lexists(target):
             os.rename(tmp, target)
         elif _exchange(tmp, target):
-            shutil.rmtree(tmp)  # now holds the old folder
+            _mark(tmp)  # now holds the old folder: marked, so a kill before the rmtree leaves a temp that is ours
+            shutil.rmtree(tmp)
         else:
-            old = _old_copy(target)
-            os.rename(target, old)
-            os.rename(tmp, target)
-            shutil.rmtree(old)
+            _swap_by_renames(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _swap_by_renames(tmp: Path, target: Path) -> None:
+    """The swap without an atomic exchange: old folder aside (marked for `recover_dir`), new in, old deleted."""
+    old = _old_copy(target)
+    if os.path.lexists(old):
+        raise DestinationError(f"{old} is in the way of replacing {target} and is not a temporary folder of ours; "
+                               "move it away (it was left as it is)")
+    _mark(target)
+    try:
+        os.rename(target, old)
+    except OSError:
+        (target / TEMP_MARKER).unlink(missing_ok=True)
+        raise
+    os.rename(tmp, target)
+    shutil.rmtree(old)

@@ -46,7 +46,8 @@ from paper_lib.guard.conformal import (
     episode_maximum,
     false_alarm_bound,
 )
-from paper_lib.common.io import atomic_dir, save_npz_atomic, write_json_atomic
+from paper_lib.common.io import (atomic_dir, check_folder_destination, check_replaceable_dir, save_npz_atomic,
+                                 write_json_atomic)
 from paper_lib.common.provenance import package_versions
 from paper_lib.guard.scores import Score, as_states, load_score, make_score, policy_of, state_hashes
 from paper_lib.guard.sequential import Cusum, Statistic, WindowMean, statistic_from_dict
@@ -259,8 +260,13 @@ class Guard:
 
     # --- persistence --------------------------------------------------------------------
     def save(self, folder: str | Path) -> Path:
-        """Write ``folder/guards/<key>/`` (guard.json + arrays.npz) in one atomic swap; returns that path."""
-        target = Path(folder) / GUARDS_DIR / self.key
+        """Write ``folder/guards/<key>/`` (guard.json + arrays.npz) in one atomic swap; returns that path.
+
+        ``folder`` is a folder (made if missing); a file there, or anywhere on the way, is a ValueError
+        (``DestinationError``) before anything is written.
+        """
+        check_folder_destination(folder, "Guard.save: folder")
+        target = check_replaceable_dir(Path(folder) / GUARDS_DIR / self.key, "Guard.save: guard folder")
         meta = {"format": FORMAT, "unit": self.unit, "alpha": self.alpha, "confidence": self.confidence,
                 "threshold": self.threshold,
                 "n_calibration": self.n_calibration, "score": self.score.spec(),

@@ -21,11 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from paper_lib.guard.conformal import check_alpha, check_confidence, check_window, min_calibration_size
 from paper_lib.guard.scores import SCORE_NAMES
-from paper_lib.pipeline.config import RunConfig, validate_params
+from paper_lib.pipeline.config import RunConfig, read_params, validate_params
 
 SECTION = "guard"
 SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
@@ -154,18 +152,31 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
                          seeds=None if seeds is None else tuple(seeds), confidence=confidence, **counts)
 
 
+def check_budget_seeds(section: Any, seeds_of: dict[str, list[int]], where: str) -> None:
+    """Each budget's `seeds` must be seeds its profile trains: another seed has no runs, and the experiment's
+    tables would be empty (notebook 8 would fail deep in pandas instead of here)."""
+    budgets = section.get("budgets") if isinstance(section, dict) else None
+    for profile, budget in (budgets.items() if isinstance(budgets, dict) else []):
+        seeds = budget.get("seeds") if isinstance(budget, dict) else None
+        if not isinstance(seeds, list) or not isinstance(seeds_of.get(profile), list):
+            continue
+        missing = [s for s in seeds if s not in seeds_of[profile]]
+        if missing:
+            raise ValueError(f"{where}.budgets.{profile}: seeds must be seeds of profile {profile!r}, got {missing} "
+                             f"(its runs have seeds {seeds_of[profile]}); use some of {seeds_of[profile]} or leave "
+                             "`seeds` out for all of them")
+
+
 def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, GuardSettings]:
     """The active profile (checked by paper_lib.pipeline.config) and its guard settings."""
     path = Path(params_file)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
-    try:
-        params = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ValueError(f"{path}: YAML syntax error ({err}); fix it or restore it with `git checkout params.yaml`") \
-            from None
-    if not isinstance(params, dict) or SECTION not in params:
+    params = read_params(path)  # the project's reader: syntax errors and duplicate keys named with their line
+    if SECTION not in params:
         raise ValueError(f"{path} has no `{SECTION}` section; add it (see paper_lib/guard/settings.py and docs/guard.md)")
     section = params.pop(SECTION)
     cfg = validate_params(params, path)
-    return cfg, parse_settings(section, cfg.profile, f"{path}: {SECTION}")
+    where = f"{path}: {SECTION}"
+    settings = parse_settings(section, cfg.profile, where)
+    seeds_of = {name: profile.get("seeds") for name, profile in params["profiles"].items() if isinstance(profile, dict)}
+    check_budget_seeds(section, {**seeds_of, cfg.profile: list(cfg.seeds)}, where)
+    return cfg, settings

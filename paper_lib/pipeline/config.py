@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import copy
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +31,37 @@ HEADER = """\
 #   python -m paper_lib.pipeline.config use <profile>
 # `hyperparameters` are the paper's (appendix B), keyed by Gymnasium id.
 """
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML whose mappings may not repeat a key: plain YAML keeps the last one silently, hiding an edit."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        check_unique_keys(self, node)
+        return super().construct_mapping(node, deep=deep)
+
+
+class DuplicateKeyError(yaml.YAMLError):
+    """A key given twice in one mapping; `line` and `first` are 1-based."""
+
+    def __init__(self, key: Any, line: int, first: int) -> None:
+        super().__init__(f"key {key!r} appears twice in one mapping (lines {first} and {line})")
+        self.key, self.line, self.first = key, line, first
+
+
+def check_unique_keys(loader: yaml.SafeLoader, node: yaml.MappingNode) -> None:
+    """The explicit keys of `node` (merge keys `<<` aside: their entries may be overridden) are all different."""
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            first = seen.setdefault(key, key_node.start_mark.line + 1)
+        except TypeError:  # an unhashable key: SafeLoader reports it itself
+            continue
+        if first != key_node.start_mark.line + 1:
+            raise DuplicateKeyError(key, key_node.start_mark.line + 1, first)
 
 
 class _PlainDumper(yaml.SafeDumper):
@@ -139,8 +172,13 @@ def read_params(path: str | Path = PARAMS_FILE) -> dict[str, Any]:
 
 
 def parse_params(text: str, path: str | Path = PARAMS_FILE) -> dict[str, Any]:
+    """params.yaml's text as a dict: a syntax error or a key given twice is one ValueError naming file and line."""
     try:
-        params = yaml.safe_load(text)
+        params = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 (a SafeLoader subclass)
+    except DuplicateKeyError as err:
+        raise ValueError(f"{path} line {err.line}: duplicate key {err.key!r}, got it on lines {err.first} and "
+                         f"{err.line} of one mapping (YAML would keep only the last, silently); delete one of "
+                         "them") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -286,10 +324,23 @@ def _with_run_section(text: str, run: dict[str, Any]) -> str:
     return "".join(lines[:start]) + block + "".join(lines[end:])
 
 
+def check_writable(path: Path) -> None:
+    """`use` replaces params.yaml by a rename, which even a read-only file does not stop: refuse one up front."""
+    mode = path.stat().st_mode
+    if not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH) or not os.access(path, os.W_OK):
+        raise ValueError(f"{path} is read-only, got mode {stat.filemode(mode)}; make it writable "
+                         f"(chmod u+w {path}) and run again ({path} was left unchanged)")
+    folder = path.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"the folder of {path} is read-only, got {folder.resolve()}; make it writable "
+                         f"(chmod u+w {folder}) and run again ({path} was left unchanged)")
+
+
 def use_profile(name: str, path: str | Path = PARAMS_FILE) -> None:
     """Make profile `name` the active one (rewrites the `run` section)."""
     path = Path(path)
     params = read_params(path)
+    check_writable(path)
     if name not in params["profiles"]:
         raise ValueError(f"{path}: unknown profile {name!r}; known: {sorted(params['profiles'])}")
     if not isinstance(params["profiles"][name], dict):
@@ -300,7 +351,43 @@ def use_profile(name: str, path: str | Path = PARAMS_FILE) -> None:
         validate_params(parse_params(text, path), path)
     except ValueError as err:
         raise ValueError(f"{err} ({path} was left unchanged)") from None
-    write_text_atomic(path, text)
+    try:
+        write_text_atomic(path, text)
+    except OSError as err:
+        raise ValueError(f"cannot write {path}, got {type(err).__name__}: {err}; free space or fix the folder's "
+                         f"permissions ({path} was left unchanged)") from None
+
+
+_ABSENT = object()
+
+
+def run_differences(params: dict[str, Any]) -> list[str]:
+    """The keys of `run` that differ from `profiles.<run.profile>` (an edit of `run` that `use` would undo)."""
+    run, profiles = params["run"], params["profiles"]
+    if not isinstance(run, dict) or not isinstance(profiles, dict):
+        return []
+    if not isinstance(profiles.get(run.get("profile")), dict):
+        return []
+    profile = profiles[run["profile"]]
+    keys = sorted((set(run) | set(profile)) - {"profile"})
+    return [k for k in keys if run.get(k, _ABSENT) != profile.get(k, _ABSENT)]
+
+
+def describe_differences(params: dict[str, Any], path: str | Path = PARAMS_FILE) -> str:
+    """One line per key of `run` that differs from its profile, and how to restore the profile; "" if none."""
+    keys = run_differences(params)
+    if not keys:
+        return ""
+    name = params["run"]["profile"]
+    run, profile = params["run"], params["profiles"][name]
+
+    def shown(section: dict[str, Any], key: str) -> str:
+        return repr(section[key]) if key in section else "(absent)"
+
+    lines = [f"  {key}: run has {shown(run, key)}, profiles.{name} has {shown(profile, key)}" for key in keys]
+    return (f"note: {path}: `run` differs from profiles.{name} in {', '.join(keys)}:\n" + "\n".join(lines)
+            + f"\n`python -m paper_lib.pipeline.config use {name}` makes run its copy again "
+              f"(or edit profiles.{name} to keep the change)")
 
 
 def main() -> None:
@@ -314,6 +401,10 @@ def main() -> None:
         if args.command == "use":
             use_profile(args.profile)
         print(load_run_config())
+        if args.command == "show":
+            note = describe_differences(read_params(PARAMS_FILE), PARAMS_FILE)
+            if note:
+                print(note)
     except (ValueError, FileNotFoundError) as err:
         parser.exit(2, f"error: {err}\n")
 

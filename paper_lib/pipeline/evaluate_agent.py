@@ -26,9 +26,10 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecNormalize
 
-from paper_lib.agents.checkpoints import zip_algorithm
+from paper_lib.agents.checkpoints import check_loadable_algorithm, zip_algorithm
 from paper_lib.agents.envs import is_atari, make_env
-from paper_lib.agents.factory import ALGORITHMS
+from paper_lib.agents.factory import ALGORITHMS, check_device
+from paper_lib.common.io import atomic_files, check_folder_destination, write_text_atomic
 from paper_lib.ood.atari import ATARI_GAMES
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import StateDataset, concat
@@ -82,16 +83,18 @@ def load_agent(model_path: str | Path, algo: str | None = None, device: str = "c
     path = Path(model_path)
     if not path.is_file():
         raise FileNotFoundError(f"no model at {path}: give the .zip that model.save() wrote")
+    if algo is not None and algo not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algo!r}; use one of {sorted(ALGORITHMS)}")
+    check_device(device, "load_agent")
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu", load_data=True)
+    except Exception as err:  # not a zip, or not SB3's
+        raise ValueError(f"{path} is not an SB3 model zip ({type(err).__name__}: {err})") from err
+    check_loadable_algorithm(data or {}, path)  # even with algo given: a DQN zip fails deep in SB3 otherwise
     if algo is None:
-        try:
-            data, _, _ = load_from_zip_file(path, device=device, load_data=True)
-        except Exception as err:  # not a zip, or not SB3's
-            raise ValueError(f"{path} is not an SB3 model zip ({type(err).__name__}: {err})") from err
         algo = zip_algorithm(data or {})
         if algo is None:
             raise ValueError(f"{path}: cannot tell which algorithm saved it; pass algo= one of {sorted(ALGORITHMS)}")
-    if algo not in ALGORITHMS:
-        raise ValueError(f"unknown algorithm {algo!r}; use one of {sorted(ALGORITHMS)}")
     try:
         return ALGORITHMS[algo].load(path, device=device)
     except Exception as err:
@@ -129,6 +132,8 @@ def evaluate_agent(model: BaseAlgorithm | str | Path, env_id: str, *,
                         f"{type(budget).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r}: need a non-negative int.")
+    if out_dir is not None:  # before the collection: a wrong --out must not cost the whole run
+        check_output_folder(out_dir)
     agent = model if isinstance(model, BaseAlgorithm) else load_agent(model, algo)
     if vecnormalize is not None and not isinstance(vecnormalize, VecNormalize):
         vecnormalize = load_vecnormalize(vecnormalize, env_id, seed)
@@ -148,15 +153,45 @@ def evaluate_agent(model: BaseAlgorithm | str | Path, env_id: str, *,
         scores = score_run(agent, dataset, seed, budget.n_bootstrap, n_scoring_seeds=budget.n_scoring_seeds,
                            vecnormalize=vecnormalize)
     metrics = scores.metrics.assign(env=env_id)
+    result = AgentEvaluation(metrics, dataset, scores)
     if out_dir is not None:
-        out = Path(out_dir)
-        dataset.save(out / "dataset.npz")
         actions = "deterministic" if deterministic else "sampled"
-        save_table(metrics, out / "ood_metrics",
-                   caption=f"OOD detection metrics of {type(agent).__name__} ({type(agent.policy).__name__}) on "
-                           f"{env_id} ({budget.caption()}; {actions} actions; seed {seed}; {METRICS_NOTE}).")
-        scores.roc.to_csv(out / "roc.csv", index=False)
-    return AgentEvaluation(metrics, dataset, scores)
+        write_outputs(result, out_dir,
+                      caption=f"OOD detection metrics of {type(agent).__name__} ({type(agent.policy).__name__}) on "
+                              f"{env_id} ({budget.caption()}; {actions} actions; seed {seed}; {METRICS_NOTE}).")
+    return result
+
+
+class OutputWriteError(OSError):
+    """The results could not be written (a full disk, a lost mount); the output folder was left as it was."""
+
+
+#: What `write_outputs` puts into the output folder.
+OUTPUT_FILES = ("dataset.npz", "ood_metrics.csv", "ood_metrics.md", "ood_metrics.tex", "roc.csv")
+
+
+def check_output_folder(out_dir: str | Path) -> Path:
+    """The --out folder must be writable and must not hold a folder where one of the output files goes."""
+    out = check_folder_destination(out_dir, "--out folder")
+    in_the_way = [name for name in OUTPUT_FILES if (out / name).is_dir()]
+    if in_the_way:
+        raise ValueError(f"--out folder {out} holds folders where output files go, got {in_the_way}; move them away "
+                         "or give another --out folder")
+    return out
+
+
+def write_outputs(result: AgentEvaluation, out_dir: str | Path, caption: str) -> Path:
+    """Every output file written aside first and moved in together: a failure part-way changes nothing in `out_dir`."""
+    out = check_output_folder(out_dir)
+    try:
+        with atomic_files(out) as stage:
+            result.dataset.save(stage / "dataset.npz")
+            save_table(result.metrics, stage / "ood_metrics", caption=caption)
+            write_text_atomic(stage / "roc.csv", result.scores.roc.to_csv(index=False))
+    except OSError as err:
+        raise OutputWriteError(f"writing the results to {out} failed, got {type(err).__name__}: {err}; none of them "
+                               f"was moved in, so {out} is as it was: free space or give another --out folder") from err
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -188,6 +223,8 @@ def main(argv: list[str] | None = None) -> None:
                                 deterministic=args.deterministic, algo=args.algo, out_dir=args.out)
     except (ValueError, FileNotFoundError, TypeError) as err:
         parser.exit(2, f"error: {err}\n")
+    except OutputWriteError as err:  # e.g. a full disk while the results were written: none of them was moved in
+        parser.exit(1, f"error: {err}\n")
     table = result.metrics.pivot_table(index="measure", columns="ood_set", values="auroc", sort=False)
     print(f"AUROC (OOD positive; {budget.caption()}):")
     print(table.round(3).to_string())

@@ -24,7 +24,7 @@ from typing import Any
 import nbformat
 import yaml
 
-from paper_lib.common.io import write_text_atomic
+from paper_lib.common.io import check_file_destination, write_text_atomic
 
 #: jupyter_client interrupts a kernel before asking it to shut down; when the interrupt lands while the kernel still
 #: answers a message, ipykernel logs "KeyboardInterrupt caught in kernel". The notebook has finished by then: the
@@ -49,6 +49,25 @@ def strip_run_metadata(nb: nbformat.NotebookNode) -> nbformat.NotebookNode:
     return strip_output(nb, keep_output=True, keep_count=True, keep_id=False, extra_keys=list(RUN_METADATA_KEYS))
 
 
+def notebook_parameters(source: Path) -> list[str]:
+    """The names in `source`'s cell tagged `parameters` (read by papermill without starting a kernel)."""
+    import papermill as pm
+
+    return list(pm.inspect_notebook(str(source)))
+
+
+def check_parameters(source: Path, parameters: dict[str, Any]) -> None:
+    """papermill only warns about a parameter the notebook lacks, and the run goes on with the default: refuse it."""
+    if not parameters:
+        return
+    known = notebook_parameters(source)
+    unknown = sorted(set(parameters) - set(known))
+    if unknown:
+        have = f"its parameters are {', '.join(known)}" if known else "it has no cell tagged `parameters`"
+        given = ", ".join(f"-p {name}" for name in unknown)
+        raise ValueError(f"unknown parameter(s) of {source}, got {given}; {have}: fix the name (nothing was executed)")
+
+
 def run_notebook(source: str | os.PathLike[str], target: str | os.PathLike[str],
                  parameters: dict[str, Any] | None = None, kernel_name: str = "python3") -> Path:
     """Execute `source` with `parameters` (papermill), strip run metadata and write `target` atomically."""
@@ -60,6 +79,8 @@ def run_notebook(source: str | os.PathLike[str], target: str | os.PathLike[str],
         raise ValueError(f"notebook {source} not found; run from the repository root (notebooks/ is there)")
     if target.suffix != ".ipynb":
         raise ValueError(f"the executed notebook must be written to a .ipynb file, got {target}")
+    check_file_destination(target, "executed notebook")
+    check_parameters(source, parameters or {})
     nb = pm.execute_notebook(str(source), None, parameters=parameters or {}, kernel_name=kernel_name,
                              progress_bar=False, log_output=False,
                              config=Config({"KernelManager": {"transport": "ipc"}}),

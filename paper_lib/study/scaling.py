@@ -105,6 +105,12 @@ def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = No
         raise ValueError(f"{where}.eval_episodes must be a positive integer, got {episodes!r}")
     if not isinstance(raw["fixed"], dict):
         raise ValueError(f"{where}.fixed must be a mapping of algorithm settings, got {raw['fixed']!r}")
+    for name, listed in [("methods", raw["methods"]), ("seeds", raw["seeds"]),
+                         *((f"widths.{env_id}", widths) for env_id, widths in raw["widths"].items())]:
+        twice = sorted({x for x in listed if listed.count(x) > 1}, key=str)
+        if twice:  # each run would be listed, trained and counted twice
+            raise ValueError(f"{where}.{name} must list each entry once, got {twice} twice in {listed!r}; "
+                             f"delete the repeats in {path}")
     runs = [ScalingRun(env_id, method, width, seed) for env_id, widths in raw["widths"].items()
             for method in raw["methods"] for width in widths for seed in raw["seeds"]]
     return ScalingConfig(profile, budget, runs, steps, dict(raw["fixed"]), episodes, hps, path.parent)

@@ -35,6 +35,8 @@ from paper_lib.study.config import Heartbeat
 SCHEMES = ("sqlite", "postgresql", "mysql")
 #: Two workers that start at once on a fresh database both try to create its tables; the loser retries.
 OPEN_TRIES = 5
+#: The first bytes of every SQLite database file (an empty file is a new database too).
+SQLITE_HEADER = b"SQLite format 3\x00"
 
 
 @contextmanager
@@ -60,8 +62,27 @@ def check_url(url: str) -> str:
         if not path or path == ":memory:":
             raise ValueError(f"storage {url!r}: an in-memory database is lost when the worker ends; "
                              "give a file, e.g. sqlite:///results/cpu/studies/studies.db")
+        check_sqlite_file(Path(path))
         Path(path).parent.mkdir(parents=True, exist_ok=True)
     return url
+
+
+def check_sqlite_file(path: Path) -> None:
+    """An existing file must be an SQLite database: anything else fails deep in SQLAlchemy, naming no file."""
+    if path.is_dir():
+        raise ValueError(f"study storage {path} is a folder, not an SQLite file; give a .db file path, e.g. "
+                         "sqlite:///results/cpu/studies/studies.db")
+    if not path.is_file():
+        return
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(SQLITE_HEADER))
+    except OSError as err:
+        raise ValueError(f"study storage {path} cannot be read, got {type(err).__name__}: {err}; fix its "
+                         "permissions or give another .db file") from None
+    if head and head != SQLITE_HEADER:
+        raise ValueError(f"study storage {path} is not an SQLite database, got a file starting with {head[:16]!r}; "
+                         "move it aside (it was left as it is) or give another .db file")
 
 
 def open_storage(url: str, heartbeat: Heartbeat) -> RDBStorage:
@@ -80,6 +101,9 @@ def open_storage(url: str, heartbeat: Heartbeat) -> RDBStorage:
                 sqlalchemy.exc.ProgrammingError) as err:
             last = err  # e.g. "table already exists" from a worker that started at the same moment
             time.sleep(0.5 * (attempt + 1))
+        except sqlalchemy.exc.DatabaseError as err:  # e.g. a damaged file: trying again changes nothing
+            raise ValueError(f"the study storage {url!r} is not a usable database, got {type(err).__name__}: "
+                             f"{str(err).splitlines()[0]}; move the file aside or give another storage URL") from err
     raise ValueError(f"cannot open the study storage {url!r} ({type(last).__name__}: "
                      f"{str(last).splitlines()[0] if last else ''}); check that the database is reachable") from last
 
