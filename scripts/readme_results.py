@@ -232,10 +232,19 @@ def headline_part(tables: Path) -> str:
     return f"{(tables / HEADLINE_TABLE).read_text(encoding='utf-8').strip()}\n\n(Pasted from `{tables / HEADLINE_TABLE}`.)"
 
 
+def aggregate_parts(tables: Path) -> list[str]:
+    """Across envs first (the reader's first question): rliable's aggregates of reward and AUROC (notebooks 2, 3)."""
+    stems = (("reward_aggregates", "Across envs: reward"), ("reward_improvement", "Across envs: P(more reward)"),
+             ("auroc_aggregates", "Across envs: OOD detection"), ("auroc_improvement", "Across envs: P(higher AUROC)"))
+    return [f"### {title}\n\n{(tables / f'{stem}.md').read_text().strip()}" for stem, title in stems
+            if (tables / f"{stem}.md").exists()]
+
+
 def results_part(results: Path) -> str:
     """Everything docs/results.md shows between its markers: run count, Tables 1 and 2, the readings."""
     tables = results / "tables"
     parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`). {training_time(results)}".strip(),
+             *aggregate_parts(tables),
              f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}{repeated_games_line(tables)}",
              f"### Reward against the paper\n\n{(tables / 'paper_vs_us_rewards.md').read_text().strip()}",
              f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{(tables / 'ood_auroc_perturbed.md').read_text().strip()}",

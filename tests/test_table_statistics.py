@@ -337,3 +337,17 @@ def test_repeated_games_counts_the_distinct_games_of_each_run_and_mode():
     distinct = episodes[episodes["deterministic"] == False]  # noqa: E712
     assert repeated_games(distinct).empty
     assert repeated_games_note(repeated_games(distinct), distinct).startswith("Every one of the 1 run x mode groups")
+
+
+def test_an_ood_set_a_raw_input_detector_separates_is_flagged_per_method():
+    """AUROC >= 0.99 of kNN or Mahalanobis on the inputs themselves: the states differ plainly, flagged."""
+    from paper_lib.reporting.paper_tables import trivially_separable, trivially_separable_note
+
+    rows = [{"env": "E", "ood_set": "perturbed", "method": m, "seed": s, "measure": d, "auroc": a}
+            for m, values in (("x", {"knn_obs": (0.995, 0.999), "mahalanobis_obs": (0.7, 0.7)}),
+                              ("y", {"knn_obs": (0.98, 0.99), "mahalanobis_obs": (0.9, 0.9), "value_std": (1.0, 1.0)}))
+            for d, pair in values.items() for s, a in enumerate(pair)]
+    table = trivially_separable(pd.DataFrame(rows)).set_index("method")
+    assert table.loc["x", "detector"] == "knn_obs" and bool(table.loc["x", "trivially_separable"])
+    assert table.loc["y", "auroc"] == pytest.approx(0.985) and not table.loc["y", "trivially_separable"]  # value_std is no raw detector
+    assert "1 of 2 methods' states" in trivially_separable_note(table.reset_index())

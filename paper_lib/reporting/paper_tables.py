@@ -499,3 +499,38 @@ def ci_verdicts(df: pd.DataFrame) -> dict[str, int]:
     """How many rows' intervals lie above 0, below 0, or contain it."""
     above, below = int((df["ci_low"] > 0).sum()), int((df["ci_high"] < 0).sum())
     return {"above": above, "below": below, "undecided": len(df) - above - below}
+
+
+#: A raw-input detector at or above this AUROC means the OOD states differ from the ID ones in the input itself, so
+#: plainly that no uncertainty is needed to tell them apart: such an OOD set tests little of a member measure.
+TRIVIAL_AUROC = 0.99
+RAW_INPUT_DETECTORS = ("knn_obs", "mahalanobis_obs")
+TRIVIAL_COLUMNS = ["env", "ood_set", "method", "detector", "auroc", "n_seeds", "trivially_separable"]
+
+
+def trivially_separable(metrics: pd.DataFrame, threshold: float = TRIVIAL_AUROC) -> pd.DataFrame:
+    """Per env, OOD set and method: the raw-input detector (kNN or Mahalanobis on observations or pixels) with the
+    highest AUROC (mean over seeds), and whether it reaches `threshold`."""
+    raw = metrics[metrics["measure"].isin(RAW_INPUT_DETECTORS)]
+    cells = raw.groupby(["env", "ood_set", "method", "measure"], sort=False).agg(auroc=("auroc", "mean"),
+                                                                                 n_seeds=("seed", "nunique"))
+    best = cells.reset_index().sort_values("auroc", ascending=False, kind="stable")
+    best = best.drop_duplicates(["env", "ood_set", "method"]).rename(columns={"measure": "detector"})
+    order = {key: i for i, key in enumerate(dict.fromkeys(zip(raw["env"], raw["ood_set"], raw["method"])))}
+    best = best.assign(trivially_separable=best["auroc"] >= threshold,
+                       _order=[order[key] for key in zip(best["env"], best["ood_set"], best["method"])])
+    return best.sort_values("_order")[TRIVIAL_COLUMNS].reset_index(drop=True)
+
+
+def trivially_separable_note(table: pd.DataFrame, threshold: float = TRIVIAL_AUROC) -> str:
+    """One line per env and OOD set whose raw-input detectors separate every method's states at `threshold`."""
+    flagged = table[table["trivially_separable"]]
+    if flagged.empty:
+        return f"No OOD set is trivially separable: no raw-input detector reaches AUROC {threshold:.2f} on any run's states."
+    lines = []
+    for (env, ood_set), group in flagged.groupby(["env", "ood_set"], sort=False):
+        total = int(((table["env"] == env) & (table["ood_set"] == ood_set)).sum())
+        lines.append(f"- **{env}**, {ood_set} states: a raw-input detector reaches AUROC >= {threshold:.2f} for "
+                     f"{len(group)} of {total} methods' states (best {group['auroc'].max():.3f}): these OOD states "
+                     "differ plainly in the input, so they test little of what a member measure adds.")
+    return "\n".join(lines)
