@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -131,6 +132,31 @@ def collection_actions(dataset) -> str:
     return f"{actions} actions, {mode.get('inference')} inference"
 
 
+def _identity_error(path: Path, found: dict[str, Any], env_id: str, method: str, seed: int) -> ValueError:
+    wanted = f"{env_id} {method} seed {seed}"
+    got = " ".join(str(found.get(key)) for key in ("env", "method")) + f" seed {found.get('seed')}"
+    return ValueError(f"{path} belongs to {got}, not to {wanted} whose path it sits at: a file of another run is never "
+                      f"read as this one's; put back this run's file (`make recollect` collects it again)")
+
+
+def check_dataset_identity(metadata: dict[str, Any], path: Path, env_id: str, method: str, seed: int) -> None:
+    """The dataset at a run's path must name that run in its metadata (the model that collected it)."""
+    model = metadata.get("model") or {}
+    found = {"env": model.get("env_id", metadata.get("env_id")), "method": model.get("method"), "seed": model.get("seed")}
+    if (found["env"], found["method"], found["seed"]) != (env_id, method, seed):
+        raise _identity_error(path, found, env_id, method, seed)
+
+
+def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, method: str, seed: int) -> None:
+    """Every episode of the evaluation file at a run's path must be that run's (its env, method, seed columns)."""
+    for key, value in (("env", env_id), ("method", method), ("seed", seed)):
+        values = set(episodes[key]) if key in episodes else {None}
+        if values != {value}:
+            found = {k: ", ".join(map(str, sorted(set(episodes[k]), key=str))) if k in episodes else None
+                     for k in ("env", "method", "seed")}
+            raise _identity_error(path, found, env_id, method, seed)
+
+
 def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     """Score one run's ID/OOD dataset with every measure and detector; write its four result files at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
@@ -146,6 +172,7 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
         raise FileNotFoundError(f"dataset {path} is missing; collect it with `dvc repro -s collect@{env_id}-{method}-{seed}` "
                                 "(`make recollect` collects every run's)")
     data = StateDataset.load(path)
+    check_dataset_identity(data.metadata, path, env_id, method, seed)
     tag = {"env": env_id, "method": method, "seed": seed}
     run = score_run(ckpt, data, seed, cfg.n_bootstrap, n_scoring_seeds=getattr(cfg, "n_scoring_seeds", 1))
     files = {"metrics.csv": run.metrics.assign(protocol=collection_protocol(data), actions=collection_actions(data), **tag),
@@ -184,8 +211,15 @@ def _replicate_matrix(metrics: pd.DataFrame, replicates: pd.DataFrame) -> np.nda
 
 
 def read_evaluations(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
-    """Every evaluation episode of `runs` in one frame (env, method, seed, inference, deterministic, ...)."""
-    return pd.concat([pd.read_csv(evaluation_path(cfg, *run)) for run in runs], ignore_index=True)
+    """Every evaluation episode of `runs` in one frame (env, method, seed, inference, deterministic, ...); a file at
+    a run's path that holds another run's episodes is refused."""
+    frames = []
+    for run in runs:
+        path = evaluation_path(cfg, *run)
+        episodes = pd.read_csv(path)
+        check_evaluation_identity(episodes, path, *run)
+        frames.append(episodes)
+    return pd.concat(frames, ignore_index=True)
 
 
 def read_replicates(cfg: RunConfig, run: tuple[str, str, int]) -> dict[tuple[str, str], np.ndarray]:
