@@ -120,10 +120,14 @@ def test_dvc_repro_plans_no_training_collection_or_evaluation_on_the_committed_t
     listed = yaml.safe_load((tiny_repo / "runs.yaml").read_text())
     assert listed["profile"] == "tiny" and sorted(listed["committed_runs"]) == [
         "HalfCheetah-v5-baseline-0", "HalfCheetah-v5-masksembles-0"]
-    done = _run([str(BIN / "dvc"), "repro", "--dry"], tiny_repo)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    for family in ("train@", "collect@", "evaluate@", "score@"):
-        assert f"Running stage '{family}" not in done.stdout, done.stdout
+    done = _run([str(BIN / "dvc"), "stage", "list", "--name-only"], tiny_repo)
+    per_run = [name for name in done.stdout.split() if "@" in name]
+    assert done.returncode == 0 and len(per_run) == 8 and not any(name.endswith("-1") for name in per_run), done.stdout
+    # nothing of them is planned: `dvc status` (what `dvc repro` acts on) finds every per-run stage up to date (the
+    # tiny copy has no study database, so `dvc repro --dry` would stop at the study stages, which long runs feed)
+    done = _run([str(BIN / "dvc"), "status", "--json"], tiny_repo)
+    changed = json.loads(done.stdout)
+    assert done.returncode == 0 and not [name for name in changed if "@" in name], changed
 
 
 def test_every_table_and_figure_from_the_runs_that_exist(tiny_repo):
