@@ -290,6 +290,16 @@ def test_a_duplicate_key_in_params_yaml_is_named_with_file_and_line(tmp_path):
     assert snapshot(tmp_path) == before
 
 
+def test_the_ensembles_section_reads_params_yaml_with_the_same_duplicate_key_check(tmp_path):
+    """paper_lib.experiments.ensembles reads params.yaml through the pipeline's one reader, not plain YAML."""
+    from paper_lib.experiments.ensembles import load_ensembles_config
+
+    path = params_copy(tmp_path, lambda text: text.replace("  rule: {", "  rule: {budget_fraction: 0.5, ", 1))
+    assert "rule: {budget_fraction: 0.5, budget_fraction" in path.read_text()
+    with pytest.raises(ValueError, match=r"params\.yaml line \d+: duplicate key 'budget_fraction'"):
+        load_ensembles_config(path)
+
+
 def test_use_on_a_read_only_params_yaml_is_one_error_and_the_file_is_unchanged(tmp_path):
     path = params_copy(tmp_path)
     path.chmod(0o444)

@@ -203,13 +203,8 @@ def load_ensembles_config(path: str | Path = PARAMS_FILE) -> EnsemblesConfig:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found; run from the repository root (it holds params.yaml)")
-    text = path.read_text()
-    try:
-        params = yaml.safe_load(text)
-    except yaml.YAMLError:
-        parse_params(text, path)  # raises the pipeline's one-line syntax error (file, line, fix)
-        raise
-    section = params.pop(SECTION, None) if isinstance(params, dict) else None
+    params = parse_params(path.read_text(), path)  # one reader: syntax errors and duplicate keys named with their line
+    section = params.pop(SECTION, None)
     # the rest of params.yaml gets the pipeline's own checks, as if this section were not there
     run = validate_params(parse_params(yaml.safe_dump(params), path), path)
     if not isinstance(section, dict):

@@ -57,11 +57,11 @@ def check_unique_keys(loader: yaml.SafeLoader, node: yaml.MappingNode) -> None:
             continue
         key = loader.construct_object(key_node, deep=True)
         try:
-            first = seen.setdefault(key, key_node.start_mark.line + 1)
+            if key in seen:  # also twice on one line, as in a flow mapping {a: 1, a: 2}
+                raise DuplicateKeyError(key, key_node.start_mark.line + 1, seen[key])
+            seen[key] = key_node.start_mark.line + 1
         except TypeError:  # an unhashable key: SafeLoader reports it itself
             continue
-        if first != key_node.start_mark.line + 1:
-            raise DuplicateKeyError(key, key_node.start_mark.line + 1, first)
 
 
 class _PlainDumper(yaml.SafeDumper):
