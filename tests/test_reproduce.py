@@ -74,3 +74,18 @@ def test_the_committed_run_list_names_exactly_the_runs_with_a_committed_checkpoi
     cfg = load_run_config(repo / "params.yaml")
     assert (repo / RUN_LIST).read_text() == run_list_text(cfg, available_runs(cfg, "checkpoint")), (
         "runs.yaml is out of date: write it with `python -m paper_lib.pipeline.run_list` and commit it")
+
+
+def test_a_recollection_reports_each_rewritten_file_against_the_one_it_replaced(tmp_path, capsys):
+    from paper_lib.pipeline.reproduce import report_recollection
+
+    before, after = tmp_path / "before", tmp_path / "after"
+    before.mkdir(), after.mkdir()
+    for name, old, new in [("noise.csv", "m,auroc\na,0.9\n", "m,auroc\na,0.9000001\n"),
+                           ("moved.csv", "m,auroc\na,0.9\n", "m,auroc\na,0.7\n")]:
+        (before / name).write_text(old)
+        (after / name).write_text(new)
+    outside = report_recollection({after / name: before / name for name in ("noise.csv", "moved.csv")})
+    printed = capsys.readouterr().out
+    assert outside == 1 and "1 of 2 evaluation and score files within" in printed
+    assert "moved.csv: numbers differ (largest difference 0.2 in auroc" in printed and "noise.csv" not in printed

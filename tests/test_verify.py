@@ -39,7 +39,7 @@ def test_arrays_and_missing_files(tmp_path):
     np.save(a, np.array([[0.5, np.nan]], np.float32))
     np.save(b, np.array([[0.5 + 2 ** -20, np.nan]], np.float32))
     found = compare_files(a, b)
-    assert found.result == "numbers differ" and found.max_abs_diff == pytest.approx(2 ** -20)
+    assert found.result == "within tolerance" and found.max_abs_diff == pytest.approx(2 ** -20)  # float32 noise
     assert compare_files(a, tmp_path / "absent.npy").result == "missing"
 
 
@@ -66,3 +66,41 @@ def test_a_seed_that_is_not_a_number_is_one_clear_error(capsys):
         main(["--run", "HalfCheetah-v5", "masksembles", "zero"])
     assert exit_.value.code == 2
     assert "integer seed" in capsys.readouterr().err
+
+
+def test_float32_noise_is_within_tolerance_and_more_is_not(tmp_path):
+    from paper_lib.pipeline.verify import FLOAT_TOLERANCE, PASSING
+
+    noise = compare_files(*_pair(tmp_path, "m,auroc\na,0.9\n", f"m,auroc\na,{0.9 + FLOAT_TOLERANCE / 10}\n"))
+    assert noise.result == "within tolerance" and noise.result in PASSING
+    moved = compare_files(*_pair(tmp_path, "m,auroc\na,0.9\n", f"m,auroc\na,{0.9 + FLOAT_TOLERANCE * 10}\n"))
+    assert moved.result == "numbers differ" and moved.result not in PASSING
+
+
+def _episodes(rewards_by_group: dict[tuple[str, bool], list[float]]) -> str:
+    lines = ["inference,deterministic,member,reward,length,env,method,seed"]
+    for (inference, deterministic), rewards in rewards_by_group.items():
+        lines += [f"{inference},{deterministic},,{r},1000,Walker2d-v5,baseline,0" for r in rewards]
+    return "\n".join(lines) + "\n"
+
+
+def test_reward_episodes_are_judged_as_a_sample_per_group(tmp_path):
+    from paper_lib.pipeline.verify import PASSING
+
+    rng = np.random.default_rng(0)
+    committed = {("single", True): list(rng.normal(3000, 300, 10)), ("single", False): list(rng.normal(2000, 300, 10))}
+    # Chaotic episodes: every episode another number, same distribution (another CPU's last bits).
+    same = {group: list(rng.normal(np.mean(r), 300, 10)) for group, r in committed.items()}
+    found = compare_files(*_pair(tmp_path, _episodes(committed), _episodes(same)))
+    assert found.result == "same distribution" and found.result in PASSING and "Welch" in found.note
+    # One group's rewards fell by a third: another distribution, whatever the other group does.
+    fell = {**same, ("single", False): [r - 700 for r in committed[("single", False)]]}
+    found = compare_files(*_pair(tmp_path, _episodes(committed), _episodes(fell)))
+    assert found.result == "numbers differ" and found.result not in PASSING
+
+
+def test_reward_files_whose_labels_differ_are_another_table(tmp_path):
+    committed = {("single", True): [1.0, 2.0, 3.0]}
+    relabelled = _episodes(committed).replace("Walker2d-v5", "Ant-v5")
+    found = compare_files(*_pair(tmp_path, _episodes(committed), relabelled.replace(",1.0,", ",1.5,")))
+    assert found.result == "differs"

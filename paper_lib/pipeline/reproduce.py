@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
@@ -160,10 +162,46 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     _write_status(cfg)
 
 
+def _per_run_files(cfg: RunConfig, runs: list) -> list[Path]:
+    """The files a recollection rewrites and `verify` knows how to judge: evaluation episodes and scores."""
+    from paper_lib.pipeline.run_results import evaluation_path, score_files, scores_dir
+
+    files = [evaluation_path(cfg, *run) for run in runs]
+    files += [scores_dir(cfg, *run) / name for run in runs for name in score_files(run[0])]
+    return [path for path in files if path.is_file()]
+
+
+def report_recollection(before: dict[Path, Path]) -> int:
+    """Each rewritten file against its copy from before, with `verify`'s tolerances; the number outside them."""
+    from paper_lib.pipeline.verify import PASSING, compare_files
+
+    outside = []
+    for path, old in before.items():
+        found = compare_files(old, path)
+        if found.result not in PASSING:
+            outside.append(f"  {path}: {found.result} (largest difference {found.max_abs_diff:.3g} in "
+                           f"{found.column or '-'}{'; ' + found.note if found.note else ''})")
+    print(f"recollection: {len(before) - len(outside)} of {len(before)} evaluation and score files within "
+          "`make verify`'s tolerances of the files they replaced" + (":" if outside else "."))
+    print("\n".join(outside))
+    return len(outside)
+
+
 def recollect(cfg: RunConfig) -> None:
     """Everything that simulates, again: ID/OOD states and evaluation episodes of every run with a checkpoint, the
-    recordings, the experiments where stale; then `reproduce`."""
+    recordings, the experiments where stale; then `reproduce`; then a report of every evaluation and score file
+    against the one it replaced, with `make verify`'s tolerances (git diff shows the rest)."""
     runs = available_runs(cfg, "checkpoint")
+    with tempfile.TemporaryDirectory(prefix="recollect-") as tmp:
+        before = {}
+        for i, path in enumerate(_per_run_files(cfg, runs)):
+            before[path] = Path(tmp) / f"{i}{path.suffix}"
+            shutil.copyfile(path, before[path])
+        _recollect(cfg, runs)
+        report_recollection(before)
+
+
+def _recollect(cfg: RunConfig, runs: list) -> None:
     recordings = [stage for stage in RECORDING_STAGES
                   if stage != "record_quickstart" or has(cfg, (*QUICKSTART_RUN, 0), "checkpoint")]
     _dvc(["repro", "--single-item", "--force", *recordings,

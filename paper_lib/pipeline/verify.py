@@ -7,6 +7,13 @@ it writes with the committed one. Nothing under results/ is written. A file is `
 `same values` (the same table written otherwise), `numbers differ` (same table, some numbers not equal: the largest absolute difference and its column are
 reported; at float32 precision, ~1e-7, this is what another CPU or BLAS thread count does), or `differs`
 (another shape, columns or text).
+
+Differences are judged against tolerances fixed here, before any number is read, so a report says whether a
+difference matters: scores are `within tolerance` when no number moved by more than FLOAT_TOLERANCE (the last
+float32 bits another CPU changes, ~1e-7 observed, with room for a flipped pair of nearly tied states); reward
+episodes are chaotic (MuJoCo's last bits, amplified), so an evaluation file is judged as a sample, not episode by
+episode: `same distribution` when, for every (inference, deterministic, member) group, Welch's t-test does not tell
+the recomputed rewards from the committed ones at level EPISODE_ALPHA.
 """
 
 from __future__ import annotations
@@ -30,7 +37,13 @@ from paper_lib.pipeline.status import Run, available_runs
 STAGES = ("evaluate", "score")
 #: What each stage needs committed to be recomputed and compared.
 #: Results that count as reproduced.
-PASSING = ("identical", "same values")
+PASSING = ("identical", "same values", "within tolerance", "same distribution")
+#: The largest absolute difference of a score (AUROC, AUPR, an uncertainty value) that counts as float32 noise.
+FLOAT_TOLERANCE = 1e-5
+#: Welch's test level below which recomputed reward episodes count as another distribution than the committed.
+EPISODE_ALPHA = 0.01
+#: The columns that name an evaluation file's episode groups (paper_lib/pipeline/run_results.py writes them).
+EPISODE_GROUPS = ("inference", "deterministic", "member")
 NEEDS = {"evaluate": ("checkpoint", "evaluation"), "score": ("checkpoint", "dataset", "scores")}
 
 
@@ -38,7 +51,8 @@ NEEDS = {"evaluate": ("checkpoint", "evaluation"), "score": ("checkpoint", "data
 class Comparison:
     """How a recomputed file compares with the committed one."""
 
-    result: str  # "identical" (bytes), "same values" (written otherwise), "numbers differ", "differs", "missing"
+    result: str  # "identical", "same values", "within tolerance", "same distribution", "numbers differ", "differs",
+    #              "missing"
     max_abs_diff: float = 0.0
     column: str = ""  # where the largest difference is (CSV column, or "array")
     note: str = ""
@@ -54,10 +68,47 @@ def compare_files(committed: Path, fresh: Path) -> Comparison:
         a, b = np.load(committed), np.load(fresh)
         if a.shape != b.shape:
             return Comparison("differs", note=f"shape {a.shape} committed, {b.shape} recomputed")
-        return _numbers(a.astype(np.float64), b.astype(np.float64), "array")
+        return _within_tolerance(_numbers(a.astype(np.float64), b.astype(np.float64), "array"))
     if committed.suffix == ".csv":
-        return _compare_tables(pd.read_csv(committed), pd.read_csv(fresh))
+        a, b = pd.read_csv(committed), pd.read_csv(fresh)
+        if "reward" in a.columns and set(EPISODE_GROUPS) <= set(a.columns):
+            return _compare_episodes(a, b)
+        return _within_tolerance(_compare_tables(a, b))
     return Comparison("differs", note="not a CSV or .npy file, and its bytes differ")
+
+
+def _within_tolerance(found: Comparison) -> Comparison:
+    if found.result == "numbers differ" and found.max_abs_diff <= FLOAT_TOLERANCE:
+        return dataclasses.replace(found, result="within tolerance", note=f"<= {FLOAT_TOLERANCE:g}")
+    return found
+
+
+def _compare_episodes(a: pd.DataFrame, b: pd.DataFrame) -> Comparison:
+    """Reward episodes: every column but reward and length the same, then each group's rewards as a sample."""
+    from scipy.stats import ttest_ind
+
+    found = _compare_tables(a, b)
+    if found.result != "numbers differ" and found.result != "differs":
+        return found
+    if list(a.columns) != list(b.columns) or a.shape != b.shape:
+        return found
+    labels = [c for c in a.columns if c not in ("reward", "length")]
+    same = _compare_tables(a[labels], b[labels])
+    if same.result not in ("same values", "identical"):
+        return same
+    groups = a[list(EPISODE_GROUPS)].astype(str).groupby(list(EPISODE_GROUPS), sort=False, dropna=False).groups
+    smallest = 1.0
+    for rows in groups.values():
+        x, y = a.loc[rows, "reward"].to_numpy(float), b.loc[rows, "reward"].to_numpy(float)
+        if len(x) < 2 or (np.ptp(x) == 0 and np.ptp(y) == 0):
+            p = 1.0 if np.allclose(x, y) else 0.0
+        else:
+            p = float(ttest_ind(x, y, equal_var=False).pvalue)
+        smallest = min(smallest, p)
+    result = "same distribution" if smallest >= EPISODE_ALPHA else "numbers differ"
+    return Comparison(result, found.max_abs_diff, found.column,
+                      note=f"episodes differ one by one; smallest Welch p over its groups {smallest:.3g} "
+                           f"({'>=' if smallest >= EPISODE_ALPHA else '<'} {EPISODE_ALPHA})")
 
 
 def _compare_tables(a: pd.DataFrame, b: pd.DataFrame) -> Comparison:
@@ -172,16 +223,17 @@ def main(argv: list[str] | None = None) -> int:
         frame = verify_run(cfg, run, stages)
         frames.append(frame)
         worst = frame.sort_values("max_abs_diff").iloc[-1]
-        print(f"{run[0]} {run[1]} seed {run[2]}: {frame.result.isin(PASSING).sum()} of {len(frame)} files the same"
+        print(f"{run[0]} {run[1]} seed {run[2]}: {frame.result.isin(PASSING).sum()} of {len(frame)} files within tolerance"
               + ("" if worst.max_abs_diff == 0 else f" (largest difference {worst.max_abs_diff:.3g} in "
                  f"{worst.file}, {worst.column})"), flush=True)
     table = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     different = table[~table.result.isin(PASSING)] if len(table) else table
-    print(f"\n{len(table) - len(different)} of {len(table)} files the same as the committed ones "
+    print(f"\n{len(table) - len(different)} of {len(table)} files the same as the committed ones or within tolerance "
           f"({len(runs)} run(s), stages {', '.join(stages)}).")
     if len(different):
         print(different.drop(columns=["seconds"]).to_markdown(index=False))
-        print("\nNumbers that differ at float32 precision (relative ~1e-7), and ROC points or rank metrics that one "
+        print(f"\nOutside the tolerances (scores: {FLOAT_TOLERANCE:g}; reward episodes: Welch's p >= {EPISODE_ALPHA} "
+              "per group). Numbers that differ at float32 precision (relative ~1e-7), and ROC points or rank metrics that one "
               "flipped pair of nearly tied states moves, usually mean another CPU or BLAS thread count than the "
               "committed files were made with; larger differences, changed code, params.yaml or packages "
               "(`dvc status` lists stale stages). Reward episodes go their own way from the first differing bit "
