@@ -182,3 +182,19 @@ def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
     assert not any("--timesteps" in line for line in lines if " Swimmer-v5 " in line)
     with pytest.raises(ValueError, match=r"env\(s\) \['Foo'\] are not in profile 'paper'"):
         queue_lines(cfg, envs=["Foo"])
+
+
+def test_a_profile_switch_from_the_command_line_rewrites_runs_yaml_for_dvc(tmp_path):
+    """dvc.yaml's per-run stages come from runs.yaml: after `config use`, they are the new profile's runs."""
+    import subprocess
+    import sys
+
+    (tmp_path / "params.yaml").write_text((REPO / "params.yaml").read_text())
+    (tmp_path / "runs.yaml").write_text((REPO / "runs.yaml").read_text())
+    assert yaml.safe_load((tmp_path / "runs.yaml").read_text())["profile"] == "paper"
+    done = subprocess.run([sys.executable, "-m", "paper_lib.pipeline.config", "use", "tiny"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    listed = yaml.safe_load((tmp_path / "runs.yaml").read_text())
+    assert listed["profile"] == "tiny" and not listed["committed_runs"]  # no tiny checkpoint in this folder
+    assert "runs.yaml now lists profile 'tiny'" in done.stdout

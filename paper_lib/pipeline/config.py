@@ -24,6 +24,7 @@ from paper_lib.common.io import write_text_atomic
 from paper_lib.methods.groups import check_member_layout
 from paper_lib.methods.networks import METHODS
 from paper_lib.methods.policy import INFERENCE_MODES
+from paper_lib.pipeline.layout import Layout, results_dir
 
 PARAMS_FILE = Path("params.yaml")
 HEADER = """\
@@ -99,22 +100,27 @@ class RunConfig:
     atari_head_root: Path | None = None  # a local Atari-HEAD copy: its frames become the Atari OOD states
 
     @property
+    def layout(self) -> Layout:
+        """Where this profile's artifacts live (paper_lib.pipeline.layout, the one home of the paths)."""
+        return Layout(self.results)
+
+    @property
     def results(self) -> Path:
-        return self.root / "results" / self.profile
+        return results_dir(self.root, self.profile)
 
     def checkpoint_dir(self, env_id: str, method: str, seed: int) -> Path:
-        return self.results / "checkpoints" / env_id / method / f"seed{seed}"
+        return self.layout.checkpoint_dir(env_id, method, seed)
 
     def dataset_path(self, env_id: str, method: str, seed: int) -> Path:
-        return self.results / "datasets" / env_id / method / f"seed{seed}.npz"
+        return self.layout.dataset_path(env_id, method, seed)
 
     @property
     def tables(self) -> Path:
-        return self.results / "tables"
+        return self.layout.tables
 
     @property
     def figures(self) -> Path:
-        return self.results / "figures"
+        return self.layout.figures
 
     def runs(self) -> list[tuple[str, str, int]]:
         return [(e, m, s) for e in self.envs for m in self.methods for s in self.seeds]
@@ -400,6 +406,11 @@ def main() -> None:
     try:
         if args.command == "use":
             use_profile(args.profile)
+            from paper_lib.pipeline.run_list import write_run_list  # run_list reads this module's RunConfig
+
+            listed, changed = write_run_list(load_run_config())  # dvc.yaml's per-run stages: the new profile's runs
+            if changed:
+                print(f"{listed} now lists profile {args.profile!r}'s runs with a checkpoint")
         print(load_run_config())
         if args.command == "show":
             note = describe_differences(read_params(PARAMS_FILE), PARAMS_FILE)
