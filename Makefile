@@ -6,13 +6,16 @@
 #   make retrain     train every missing or changed run of the active profile, then everything (HOURS per run)
 #   make verify      recompute the committed scores of one run per env aside and compare them, file by file
 #   make render-deps install the EGL libraries MuJoCo's offscreen rendering needs (Debian/Ubuntu, as root)
+#   make lab         JupyterLab on the project's .venv kernel, opened at notebooks/ (prints its address; Ctrl+C stops it)
+#   make site        the results website from docs/ and the executed notebooks, offline: open build/site/index.html
+#   make browser-deps install Debian's chromium and chromedriver, which the browser tests drive (as root; make test runs it)
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 WITH_VENV := PATH=$(CURDIR)/$(BIN):$$PATH
 
-.PHONY: setup reproduce regenerate recollect retrain test bench verify render-deps
+.PHONY: setup reproduce regenerate recollect retrain test bench verify render-deps lab site browser-deps
 
 setup: $(STAMP)
 
@@ -38,7 +41,7 @@ recollect: $(STAMP)
 retrain: $(STAMP)
 	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.reproduce --retrain
 
-test: $(STAMP)
+test: $(STAMP) browser-deps
 	$(WITH_VENV) $(BIN)/python -m pytest -n 2 --dist loadfile -q tests
 
 # Same seed, same machine: same numbers. Writes nothing under results/ (paper_lib/pipeline/verify.py).
@@ -56,4 +59,26 @@ render-deps:
 		apt-get update -qq && apt-get install -y -qq libegl1 libopengl0 libegl-mesa0 libgl1-mesa-dri; \
 	else \
 		echo "render-deps: needs apt-get and root; install libegl1 libopengl0 libegl-mesa0 libgl1-mesa-dri yourself"; \
+	fi
+
+# The readers' front doors (scripts/lab.py, scripts/build_site.py; docs/pipeline.md). `make lab` starts kernels in
+# the repository root, where the notebooks' paths resolve; `make site` shows the committed executed notebooks
+# (nothing is executed or fetched) and rebuilds only what changed since the last build.
+lab: $(STAMP)
+	$(WITH_VENV) $(BIN)/python scripts/lab.py
+
+site: $(STAMP)
+	$(WITH_VENV) $(BIN)/python scripts/build_site.py
+
+# tests/test_lab.py and tests/test_site.py drive Debian's chromium through chromedriver (Selenium never downloads a
+# browser). Installed where missing, as root with apt-get (CI); elsewhere those tests skip with this advice.
+browser-deps:
+	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then \
+		:; \
+	elif command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+			chromium chromium-driver fonts-liberation \
+		|| echo "browser-deps: apt-get could not install chromium; tests/test_lab.py and tests/test_site.py will fail"; \
+	else \
+		echo "browser-deps: needs apt-get and root; install chromium and chromium-driver (Debian) yourself"; \
 	fi

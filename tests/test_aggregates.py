@@ -7,7 +7,9 @@ import pandas as pd
 import pytest
 
 from paper_lib.reporting.aggregates import (aggregate_table, improvement_table, interquartile_mean, normalized_rewards,
-                                            probability_of_improvement, score_matrices, stratified_resample)
+                                            performance_profile, probability_of_improvement, profile_taus,
+                                            profiles_by_env_family, score_distribution, score_matrices,
+                                            stratified_resample)
 
 
 def test_interquartile_mean_is_the_mean_of_the_middle_half_of_all_runs():
@@ -63,3 +65,44 @@ def test_rewards_are_normalized_by_the_baseline_of_their_env_with_sampled_action
     ])
     runs = normalized_rewards(episodes).set_index(["method", "seed"])["normalized_reward"]
     assert runs[("baseline", 0)] == 0.5 and runs[("baseline", 1)] == 1.5 and runs[("masksembles", 0)] == 0.5
+
+
+def test_score_distribution_is_the_fraction_of_all_runs_strictly_above_tau():
+    matrix = np.array([[0.2, 0.9], [0.6, 0.4]])  # 2 seeds x 2 envs
+    assert score_distribution(matrix, np.array([0.0, 0.5, 0.9, 1.0])).tolist() == [1.0, 0.5, 0.0, 0.0]
+
+
+def test_performance_profile_bands_resample_each_env_apart_and_need_two_seeds():
+    """Env A's runs all score 0, env B's all 1: a stratified resample keeps half the runs above 0.5 every time
+    (a pooled one would not), so the band there is exactly 0.5; one seed per env gives no band at all."""
+    split = {"m": np.array([[0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])}
+    taus = np.array([-0.5, 0.5, 1.5])
+    profile = performance_profile(split, taus, n_boot=200)
+    assert profile["fraction"].tolist() == [1.0, 0.5, 0.0]
+    assert profile["fraction_low"].tolist() == profile["fraction_high"].tolist() == [1.0, 0.5, 0.0]
+    rng = np.random.default_rng(0)
+    spread = {"better": rng.uniform(0.6, 1.0, (3, 4)), "worse": rng.uniform(0.0, 0.5, (3, 4))}
+    grid = profile_taus(spread)
+    curves = performance_profile(spread, grid, n_boot=300, seed=1)
+    assert curves.equals(performance_profile(spread, grid, n_boot=300, seed=1))  # seeded per method
+    for _, curve in curves.groupby("method"):
+        assert (np.diff(curve["fraction"]) <= 0).all()  # a profile only falls as tau rises
+        assert (curve["fraction_low"] <= curve["fraction"]).all() and (curve["fraction"] <= curve["fraction_high"]).all()
+    by = curves.set_index(["method", "tau"])["fraction"]
+    assert (by["better"] >= by["worse"]).all() and grid[0] < spread["worse"].min() and grid[-1] == spread["better"].max()
+    assert by["worse"].iloc[0] == 1.0 and by["better"].iloc[-1] == 0.0  # every curve runs from 1 down to 0
+    one_seed = performance_profile({"m": spread["better"][:1]}, grid, n_boot=50)
+    assert one_seed["fraction_low"].isna().all() and one_seed["fraction"].notna().all()
+
+
+def test_profiles_by_env_family_keep_mujoco_and_atari_apart():
+    rows = [{"env": env, "method": m, "seed": s, "auroc": base + 0.1 * s + (0.2 if m == "x" else 0.0)}
+            for env, base, seeds in (("HalfCheetah-v5", 0.3, (0, 1)), ("MsPacmanNoFrameskip-v4", 0.5, (0,)))
+            for m in ("x", "y") for s in seeds]
+    profiles = profiles_by_env_family(pd.DataFrame(rows), "auroc", ["x", "y"], n_boot=50)
+    assert set(profiles["family"]) == {"MuJoCo", "Atari"}
+    atari, mujoco = (profiles[profiles["family"] == f] for f in ("Atari", "MuJoCo"))
+    assert atari["fraction_low"].isna().all() and mujoco["fraction_low"].notna().all()  # one seed per env: no band
+    assert atari["tau"].max() == pytest.approx(0.7) and mujoco["tau"].max() == pytest.approx(0.6)  # each its own range
+    assert 0.49 < atari["tau"].min() < 0.5 and 0.29 < mujoco["tau"].min() < 0.3
+    assert (mujoco["envs"] == "HalfCheetah-v5").all() and (atari["seeds_per_env"] == 1).all()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import pickle
 import re
 import shutil
 import subprocess
@@ -34,6 +35,8 @@ from paper_lib.ood.atari import AtariOODConfig
 from paper_lib.ood.atari_head import LABEL_HEADER, load_atari_head_states
 from paper_lib.ood.mujoco import PerturbationConfig
 from paper_lib.pipeline.config import load_run_config, use_profile
+from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent
+from paper_lib.pipeline.run_results import read_evaluations
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -105,7 +108,32 @@ def ws(tmp_path_factory) -> SimpleNamespace:
             tar.add(png, arcname=trial)
         shutil.rmtree(png)
         damage(folder / f"{trial}.tar.bz2")
+    # bring your own agent: a HalfCheetah zip, and a normalizer saved for Swimmer (8 observations, not 17)
+    agents = root / "agents"
+    agents.mkdir()
+    make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(agents / "halfcheetah.zip")
+    VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(agents / "swimmer_vecnormalize.pkl"))
+    (agents / "not_vecnormalize.pkl").write_bytes(pickle.dumps({"obs_rms": None}))
+    # evaluation files cut off: mid-row, after the header, at a row boundary, to nothing (seeds 0-3 of one run)
+    whole = _evaluation_text()
+    lines = whole.splitlines(keepends=True)
+    damaged = ("reward,length\n100.0,1000\n",  # another file's columns
+               "".join(lines[:-1]) + "single,False,,,1000,HalfCheetah-v5,baseline,0\n",  # an episode without its reward
+               "".join(lines) + "single,False,,1.0,1000,HalfCheetah-v5,baseline,0,7,8\n")  # a row of too many fields
+    for seed, text in enumerate((whole[:-9], lines[0], "".join(lines[:-1]), "", *damaged)):
+        path = root / "evals" / "results" / "paper" / "evaluations" / "HalfCheetah-v5" / "baseline" / f"seed{seed}.csv"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
     return SimpleNamespace(root=root, ck=ck, params=root / "params.yaml", text=(root / "params.yaml").read_text())
+
+
+def _evaluation_text() -> str:
+    """A whole evaluation file of HalfCheetah baseline seed 0 as `evaluate_run` writes it: 3 episodes per action mode."""
+    import pandas as pd
+
+    rows = [{"inference": "single", "deterministic": d, "member": None, "reward": 100.0 + i, "length": 1000,
+             "env": "HalfCheetah-v5", "method": "baseline", "seed": 0} for d in (True, False) for i in range(3)]
+    return pd.DataFrame(rows).to_csv(index=False, lineterminator="\n")
 
 
 # ------------------------------------------------------------------------------- helpers
@@ -165,6 +193,46 @@ def budget(steps: Any) -> Callable[[SimpleNamespace], Callable[[], Any]]:
 
 def profile_switch(edit: Callable[[dict], Any], name: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
     return lambda ws: partial(use_profile, name, edited(ws, edit))
+
+
+def evaluation(seed: int) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """read_evaluations (what the rewards notebook calls) on the evaluation file of seed `seed`, cut off."""
+    import dataclasses
+
+    return lambda ws: partial(read_evaluations, dataclasses.replace(load_run_config(ws.params), root=ws.root / "evals"),
+                              [("HalfCheetah-v5", "baseline", seed)])
+
+
+def own_agent(vecnormalize: Callable[[SimpleNamespace], Any]) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """evaluate_agent on the HalfCheetah zip with `vecnormalize(ws)`; the budget is small, the error comes first."""
+    budget = Budget(configs=2, steps_per_config=10, id_episodes=4, skip_first=2, max_episode_steps=20, n_bootstrap=20,
+                    n_scoring_seeds=1)
+    return lambda ws: partial(evaluate_agent, ws.root / "agents" / "halfcheetah.zip", "HalfCheetah-v5",
+                              vecnormalize=vecnormalize(ws), budget=budget)
+
+
+def walker_vecnormalize(ws: SimpleNamespace) -> Any:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from paper_lib.agents.envs import make_env
+
+    return VecNormalize(make_env("Walker2d-v5", 1, 0))  # 17 observations, as HalfCheetah's: only the env id differs
+
+
+def guard(edit: Callable[[dict], Any]) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """load_settings (notebook 8's first cell) on a params.yaml copy whose guard section has one edit."""
+    from paper_lib.guard.settings import load_settings
+
+    return lambda ws: partial(load_settings, edited(ws, lambda data: edit(data["guard"])))
+
+
+def budget_entry(profile: str, key: str, value: Any) -> Callable[[dict], None]:
+    def edit(section: dict) -> None:
+        if key:
+            section["budgets"][profile][key] = value
+        else:
+            section["budgets"][profile] = value
+    return edit
 
 
 def head(name: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
@@ -260,6 +328,40 @@ API_CASES: list[tuple[str, Callable, str]] = [
     # Atari-HEAD
     ("atari-head-garbage-archive", head("garbage"), r"archive .*garbage/seaquest/100_RZ_3592991_Aug-24-11-44-38\.tar\.bz2 is corrupt"),
     ("atari-head-truncated-archive", head("truncated"), r"archive .*truncated/seaquest/.*\.tar\.bz2 is corrupt"),
+    # bring your own agent: a normalizer of another env, refused before any collection
+    ("vecnormalize-other-shape", own_agent(lambda ws: ws.root / "agents" / "swimmer_vecnormalize.pkl"),
+     r"agents/swimmer_vecnormalize\.pkl normalizes observations of shape \(8,\), but HalfCheetah-v5's have shape "
+     r"\(17,\): it belongs to another env; give the VecNormalize the agent was trained with on HalfCheetah-v5"),
+    ("vecnormalize-not-one", own_agent(lambda ws: ws.root / "agents" / "not_vecnormalize.pkl"),
+     r"cannot load .*not_vecnormalize\.pkl as a VecNormalize for HalfCheetah-v5 \(TypeError: it holds a dict\)"),
+    ("vecnormalize-other-env", own_agent(walker_vecnormalize),
+     r"the VecNormalize wraps Walker2d-v5, but the agent is evaluated on HalfCheetah-v5"),
+    # evaluation files cut off: the file named, not an error deep in the statistics
+    ("evaluation-cut-mid-row", evaluation(0), r"evaluations/HalfCheetah-v5/baseline/seed0\.csv is incomplete \(cut off\?\): "
+     r"its last line ends mid-row; evaluate the run again \(`python -m paper_lib\.pipeline\.run_results evaluate "
+     r"HalfCheetah-v5 baseline 0`\)"),
+    ("evaluation-header-only", evaluation(1), r"seed1\.csv is incomplete .*: it holds a header but no episode"),
+    ("evaluation-cut-at-a-row", evaluation(2), r"seed2\.csv is incomplete .*: each action mode and inference needs as "
+     r"many episodes as the others, got 3 single deterministic, 2 single sampled"),
+    ("evaluation-empty", evaluation(3), r"seed3\.csv is incomplete .*: it is empty"),
+    ("evaluation-other-columns", evaluation(4), r"seed4\.csv is incomplete .*: it lacks the column\(s\) \['inference', "),
+    ("evaluation-empty-reward", evaluation(5), r"seed5\.csv is incomplete .*: some episodes have no reward;"),
+    ("evaluation-unparsable", evaluation(6), r"seed6\.csv is incomplete .*: it is not a readable CSV \(ParserError: "),
+    # notebook 8's guard budgets (the active profile's and every other's)
+    ("guard-budget-negative", guard(budget_entry("paper", "fit_episodes", -3)),
+     r"params_\d+\.yaml: guard\.budgets\.paper\.fit_episodes must be an integer >= 1, got -3"),
+    ("guard-budget-fraction", guard(budget_entry("paper", "episode_steps", 200.5)),
+     r"params_\d+\.yaml: guard\.budgets\.paper\.episode_steps must be an integer >= 2, got 200\.5"),
+    ("guard-budget-zero", guard(budget_entry("paper", "perturbed_episodes", 0)),
+     r"guard\.budgets\.paper\.perturbed_episodes must be an integer >= 1, got 0"),
+    ("guard-budget-text", guard(budget_entry("paper", "id_test_episodes", "40")),
+     r"guard\.budgets\.paper\.id_test_episodes must be an integer >= 1, got '40'"),
+    ("guard-budget-key-typo", guard(budget_entry("paper", "calibraton_episodes", 100)),
+     r"params_\d+\.yaml: guard\.budgets\.paper: unknown key\(s\) \['calibraton_episodes'\]"),
+    ("guard-other-profile-negative", guard(budget_entry("tiny", "fit_episodes", -1)),
+     r"guard\.budgets\.tiny\.fit_episodes must be an integer >= 1, got -1"),
+    ("guard-budget-not-mapping", guard(budget_entry("paper", "", [10, 100])),
+     r"guard\.budgets\.paper must be a mapping \{fit_episodes: \.\.\., .*\}, got \[10, 100\]"),
 ]
 
 
@@ -333,6 +435,10 @@ CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
     ("pipeline-train-moved", "paper_lib.pipeline.stages", ["train", "HalfCheetah-v5", "baseline", "0"], "good",
      r"invalid choice: 'train' \(choose from '?collect'?\)"),  # one training command line: paper_lib.agents.training
     ("train-method", "paper_lib.agents.training", ["HalfCheetah-v5", "bayes", "0", "out"], "good", r"unknown method 'bayes'"),
+    # the default budget collects for minutes: the normalizer of another env is refused at the door
+    ("evaluate-agent-other-vecnormalize", "paper_lib.pipeline.evaluate_agent",
+     ["agent.zip", "HalfCheetah-v5", "--vecnormalize", "swimmer.pkl"], "good",
+     r"swimmer\.pkl normalizes observations of shape \(8,\), but HalfCheetah-v5's have shape \(17,\)"),
 ]
 
 
@@ -352,6 +458,12 @@ def _cli_workspace(root: Path) -> dict[str, Path]:
         folders[name] = root / name
         folders[name].mkdir()
         (folders[name] / "params.yaml").write_text(variant)
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from paper_lib.agents.envs import make_env
+
+    make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(folders["good"] / "agent.zip")
+    VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(folders["good"] / "swimmer.pkl"))
     return folders
 
 

@@ -11,7 +11,7 @@ import pytest
 from conftest import TINY
 from paper_lib import make_agent, paper_hyperparameters
 from paper_lib.ood import collect
-from paper_lib.ood.atari import AtariOODConfig
+from paper_lib.ood.atari import AtariOODConfig, sample_atari_config
 from paper_lib.ood.collect import (
     MAIN_TEXT_PROTOCOL,
     ActionMode,
@@ -252,6 +252,36 @@ def test_concat_subset_and_selection(id_states, ood_states):
                                  "metadata": {**id_states.metadata, "action_mode": {"deterministic": True}}})
     with pytest.raises(ValueError, match="different action_mode"):
         concat(other_mode, ood_states)
+
+
+def _states_in(configs: list[str], per_config: int = 2) -> StateDataset:
+    """OOD states, `per_config` per configuration, each configuration one episode (as the collectors keep them)."""
+    n = per_config * len(configs)
+    index = np.repeat(np.arange(len(configs)), per_config)
+    return StateDataset(states=np.zeros((n, 3)), labels=np.ones(n), source=["s"] * n, config_index=index,
+                        episode=index, step=np.tile(np.arange(per_config), len(configs)), configs=configs)
+
+
+def test_identical_configurations_are_one_condition():
+    """The generators' configurations differ by their env seed alone when they draw the same maze or physics:
+    one condition, numbered once; other parameters make another; states of the unmodified env have none."""
+    maze = [AtariOODConfig("MsPacman", "maze", v, seed=s).to_json() for v, s in ((2, 11), (3, 12), (2, 13), (2, 14))]
+    data = _states_in(maze)
+    np.testing.assert_array_equal(data.condition_index(), [0, 0, 1, 1, 0, 0, 0, 0])
+    assert data.n_conditions == 2 and data.subset(data.config_index == 1).n_conditions == 1
+    assert "8 OOD, 2 distinct OOD conditions" in repr(data)
+    physics = [PerturbationConfig(ENV, gravity=(0.0, 0.0, -2.0), seed=s).to_json() for s in (1, 2)]
+    physics.append(PerturbationConfig(ENV, gravity=(0.0, 0.0, -3.0), seed=1).to_json())
+    assert _states_in(physics).n_conditions == 2
+    # concat remaps configs; conditions follow; the unmodified env's states (config -1) count as none
+    both = concat(_states_in(maze), _states_in(physics))
+    assert both.n_conditions == 4 and len(both.configs) == 7
+    ids = StateDataset(states=np.zeros((2, 3)), labels=[0, 0], source=["id"] * 2, config_index=[-1, -1],
+                       episode=[0, 1], step=[0, 0])
+    assert ids.n_conditions == 0 and (ids.condition_index() == -1).all()
+    # a real generator: 50 MsPacman draws are its 3 mazes
+    rng = np.random.default_rng(0)
+    assert _states_in([sample_atari_config("MsPacman", rng).to_json() for _ in range(50)], 1).n_conditions == 3
 
 
 def test_bad_inputs_raise_clear_errors(cheetah):

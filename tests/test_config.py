@@ -198,3 +198,33 @@ def test_a_profile_switch_from_the_command_line_rewrites_runs_yaml_for_dvc(tmp_p
     listed = yaml.safe_load((tmp_path / "runs.yaml").read_text())
     assert listed["profile"] == "tiny" and not listed["committed_runs"]  # no tiny checkpoint in this folder
     assert "runs.yaml now lists profile 'tiny'" in done.stdout
+
+
+def test_every_params_section_names_its_unknown_and_missing_keys_alike(tmp_path):
+    """One key check (`check_keys`) for every section of params.yaml: the same message wherever the typo is."""
+    from paper_lib.experiments.ensembles import load_ensembles_config
+    from paper_lib.guard.settings import load_settings
+    from paper_lib.pipeline.config import check_keys
+    from paper_lib.study.config import load_study_config
+    from paper_lib.study.scaling import load_scaling_config
+
+    assert check_keys({"a": 1}, "here", ("a", "b")) == {"a": 1}
+    with pytest.raises(ValueError, match=r"^here: unknown key\(s\) \['c'\]; known: \['a', 'b'\]$"):
+        check_keys({"a": 1, "c": 2}, "here", ("a", "b"))
+    with pytest.raises(ValueError, match=r"^here lacks \['b'\]; fix it$"):
+        check_keys({"a": 1}, "here", ("a", "b"), ("a", "b"), fix="fix it")
+    with pytest.raises(ValueError, match=r"^here must be a mapping"):
+        check_keys([1], "here", ("a",))
+    base = yaml.safe_load((REPO / "params.yaml").read_text())
+    for name, edit, load in (
+            ("guard", lambda p: p["guard"].update(alpah=0.1), load_settings),
+            ("ensembles", lambda p: p["ensembles"]["rule"].update(budget_fractoin=0.5), load_ensembles_config),
+            ("study", lambda p: p["study"]["objective"].update(measur="x"), load_study_config),
+            ("scaling", lambda p: p["study"]["scaling"]["cpu"].update(widht=[64]), load_scaling_config),
+            ("run", lambda p: p["run"].update(n_id_state=5), load_run_config)):
+        params = yaml.safe_load(yaml.safe_dump(base))
+        edit(params)
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(params, sort_keys=False))
+        with pytest.raises(ValueError, match=rf"^{path}: .*unknown (key|setting)\(s\) \['\w+'\]; known: \["):
+            load(path)

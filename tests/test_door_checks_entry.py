@@ -354,6 +354,24 @@ def test_guard_budget_seeds_must_be_seeds_of_their_profile(tmp_path, profile):
     assert snapshot(tmp_path) == before
 
 
+def test_notebook_8_with_a_bad_guard_budget_stops_in_its_first_cell_naming_the_key(tmp_path):
+    """Another profile's budget too: `config use` would switch to it. The notebook reads params.yaml first."""
+    def negative(text: str) -> str:
+        params = yaml.safe_load(with_tiny_run(text))
+        params["guard"]["budgets"]["paper"]["fit_episodes"] = -10  # tiny is active
+        return yaml.safe_dump(params, sort_keys=False)
+
+    path = params_copy(tmp_path, negative)
+    target = tmp_path / "08_guard.ipynb"
+    before = snapshot(tmp_path)
+    done = cli("paper_lib.pipeline.notebook_run", str(REPO / "notebooks/08_guard.ipynb"), str(target), "-p",
+               "params_file", str(path), cwd=REPO, timeout=300)
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert f"ValueError: {path}: guard.budgets.paper.fit_episodes must be an integer >= 1, got -10" in done.stderr
+    assert f"08_guard.ipynb failed in a cell (traceback above); {target} was not written" in done.stderr
+    assert snapshot(tmp_path) == before
+
+
 # ----------------------------------------------------------------------------- 7. scaling runs listed twice
 
 
@@ -431,3 +449,137 @@ def test_atomic_files_moves_nothing_when_the_block_fails(tmp_path):
         write_text_atomic(stage / "a.csv", "run B")
         write_text_atomic(stage / "b.csv", "run B")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"] and (tmp_path / "a.csv").read_text() == "run B"
+
+
+OLD_SET = {"a.csv": "old a", "b.csv": "old b", "notes.txt": "the user's"}
+NEW_SET = {"a.csv": "new a", "b.csv": "new b", "c.csv": "new c"}  # c.csv had no old version
+
+
+def _write_group(folder: Path) -> None:
+    with atomic_files(folder) as stage:
+        for name, text in NEW_SET.items():
+            (stage / name).write_text(text)
+
+
+def _contents(folder: Path) -> dict[str, str]:
+    return {p.name: p.read_text() for p in folder.iterdir()}
+
+
+def _fail_moves_after_the_first(monkeypatch, fail_put_back: bool = False) -> None:
+    """os.replace of atomic_files fails from its second move of a new file on (a disk error part-way through).
+
+    Only the group's moves count (a file from the stage into the folder), not the atomic writes inside the stage."""
+    real, moves = os.replace, []
+
+    def replace(src, dst, *args, **kwargs):
+        putting_back = Path(src).parent.name == ".paper_lib_old"
+        if Path(src).parent.name.startswith(".paper_lib_files."):
+            moves.append(src)
+            if len(moves) > 1:
+                raise OSError(errno.EIO, "Input/output error")
+        if putting_back and fail_put_back:
+            raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(io.os, "replace", replace)
+
+
+def test_atomic_files_puts_the_old_group_back_when_a_move_fails_part_way(tmp_path, monkeypatch):
+    """The first new file is moved in, the second move fails: the old group is whole again, never a mix."""
+    for name, text in OLD_SET.items():
+        (tmp_path / name).write_text(text)
+    before = snapshot(tmp_path)
+    _fail_moves_after_the_first(monkeypatch)
+    with pytest.raises(OSError, match="Input/output error"):
+        _write_group(tmp_path)
+    assert snapshot(tmp_path) == before  # a.csv put back, c.csv (new) gone, no stage left
+    monkeypatch.undo()
+    _write_group(tmp_path)
+    assert _contents(tmp_path) == {**NEW_SET, "notes.txt": "the user's"}
+
+
+def test_atomic_files_left_mixed_by_a_failed_put_back_is_finished_by_the_next_write(tmp_path, monkeypatch):
+    for name, text in OLD_SET.items():
+        (tmp_path / name).write_text(text)
+    _fail_moves_after_the_first(monkeypatch, fail_put_back=True)
+    with pytest.raises(io.MixedFilesError, match=r"putting the old ones back failed too .* run "
+                                                 r"paper_lib\.common\.io\.recover_files\("):
+        _write_group(tmp_path)
+    monkeypatch.undo()
+    assert [p.name for p in io.recover_files(tmp_path)][0].startswith(".paper_lib_files.")
+    assert _contents(tmp_path) == OLD_SET  # the old group whole, the stage gone
+
+
+KILL_AFTER_FIRST_MOVE = r"""
+import os, sys
+from pathlib import Path
+from paper_lib.common import io
+real, moves = os.replace, []
+def replace(src, dst, *a, **k):
+    moves.append(src)
+    if len(moves) == 2:
+        os._exit(9)  # killed between two moves: nothing of Python's cleanup runs
+    return real(src, dst, *a, **k)
+io.os.replace = replace
+with io.atomic_files(sys.argv[1]) as stage:
+    for name in ("a.csv", "b.csv", "c.csv"):
+        (stage / name).write_text("new " + name[0])
+"""
+
+
+def test_atomic_files_killed_between_two_moves_is_put_back_by_the_next_write(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    for name, text in OLD_SET.items():
+        (out / name).write_text(text)
+    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 9, done.stderr
+    assert (out / "a.csv").read_text() == "new a" and (out / "b.csv").read_text() == "old b"  # the mix a kill leaves
+    assert io.recover_files(out) and _contents(out) == OLD_SET  # the old group whole again, nothing else
+    assert io.recover_files(out) == []
+    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
+                          timeout=120)
+    _write_group(out)  # a new write first puts the old group back, then moves its own in
+    assert _contents(out) == {**NEW_SET, "notes.txt": "the user's"}
+
+
+def test_evaluate_agent_puts_back_a_group_a_kill_left_mixed_before_collecting(tmp_path, plain_zip, monkeypatch):
+    """A kill between two moves left --out mixed; the next evaluate_agent puts the old group back at its door, so a
+    collection that then fails (here: injected) leaves the old group whole, not the mix."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for name, text in OLD_SET.items():
+        (out / name).write_text(text)
+    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 9 and (out / "a.csv").read_text() == "new a", done.stderr
+
+    def collection_fails(*args, **kwargs):
+        raise RuntimeError("the collection crashed")
+
+    monkeypatch.setattr(module, "collect_id_states", collection_fails)
+    with pytest.raises(RuntimeError, match="the collection crashed"):
+        module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    assert _contents(out) == OLD_SET
+
+
+def test_evaluate_agent_says_how_to_finish_when_the_old_results_cannot_be_put_back(tmp_path, plain_zip, monkeypatch):
+    """The moves fail part-way and so does putting the old files back: the error says so (not 'as it was') and how
+    to finish, and the next run puts the old group back before it writes."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    first = {name: (out / name).read_bytes() for name in module.OUTPUT_FILES}
+    _fail_moves_after_the_first(monkeypatch, fail_put_back=True)
+    expected = r"^moving the files into .*out failed part-way .* putting the old ones back failed too .* run " \
+               r"paper_lib\.common\.io\.recover_files"
+    with pytest.raises(module.OutputWriteError, match=expected) as err:
+        module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=1, out_dir=out)
+    assert "as it was" not in str(err.value)  # it is not: some results are new, the rest old, until recovered
+    monkeypatch.undo()
+    assert io.recover_files(out)
+    assert {name: (out / name).read_bytes() for name in module.OUTPUT_FILES} == first

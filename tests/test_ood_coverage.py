@@ -133,8 +133,10 @@ def test_the_score_stage_writes_the_check_of_atari_runs(agent, dataset, tmp_path
     dataset.save(cfg.dataset_path(ENV, "baseline", 0))
     checkpoint = Checkpoint(agent, agent.paper_lib_config, None, tmp_path)
     monkeypatch.setattr("paper_lib.agents.checkpoints.load_checkpoint", lambda *args: checkpoint)
+    cfg.checkpoint_dir(ENV, "baseline", 0).mkdir(parents=True)
+    agent.save(cfg.checkpoint_dir(ENV, "baseline", 0) / "model.zip")  # its digest goes into provenance.json
     folder = score_run_files(cfg, ENV, "baseline", 0)
-    assert sorted(p.name for p in folder.iterdir()) == sorted(score_files(ENV))
+    assert sorted(p.name for p in folder.iterdir()) == sorted([*score_files(ENV), "provenance.json"])
     table = read_source_coverage(cfg, [(ENV, "baseline", 0), ("HalfCheetah-v5", "baseline", 0)])
     assert len(table) == 1 and table.check[0] == PASSED and (table.env[0], table.seed[0]) == (ENV, 0)
     assert "source_coverage.csv" not in score_files("HalfCheetah-v5")

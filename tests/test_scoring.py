@@ -16,7 +16,7 @@ from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.measures.estimates import policy_features
 from paper_lib.methods.layers import MCDropout, MemberConv2d, MemberLinear, per_state_masks
 from paper_lib.ood.collect import ActionMode, collect_id_states, collect_mujoco_ood_states
-from paper_lib.ood.datasets import concat
+from paper_lib.ood.datasets import StateDataset, concat
 from paper_lib.scoring.ood_scores import score_run, summarize_seeds
 
 MC_METHODS = ["mc_dropconnect", "mc_dropout"]
@@ -185,6 +185,22 @@ def test_score_run_is_seeded_and_separates_fit_and_eval_episodes(cheetah_run):
     assert knn.auroc.item() > 0.9
     assert (a.metrics.ci == "cluster").all() and (a.metrics.n_id_clusters == 2).all()
     assert (a.metrics[a.metrics.ood_set == "perturbed"].n_ood_clusters == 3).all()
+
+
+def test_identical_ood_configurations_are_resampled_as_one_cluster(cheetah_run):
+    """The third configuration made a redraw of the first (same physics, another env seed): the bootstrap
+    sees 2 OOD conditions, not 3; the AUROCs (point estimates) stay exactly as they were."""
+    model, data = cheetah_run
+    first = json.loads(data.configs[0])
+    redraw = json.dumps({**first, "seed": first["seed"] + 1}, sort_keys=True)
+    merged = StateDataset(**{**{k: getattr(data, k) for k in ("states", "labels", "source", "config_index", "episode",
+                                                               "step", "metadata")},
+                             "configs": [*data.configs[:2], redraw]})
+    a, b = score_run(model, data, 0, 30), score_run(model, merged, 0, 30)
+    perturbed = a.metrics.ood_set == "perturbed"
+    assert (a.metrics[perturbed].n_ood_clusters == 3).all() and (b.metrics[perturbed].n_ood_clusters == 2).all()
+    assert a.metrics.auroc.equals(b.metrics.auroc) and a.metrics[~perturbed].equals(b.metrics[~perturbed])
+    assert not np.allclose(a.metrics[perturbed].auroc_ci_low, b.metrics[perturbed].auroc_ci_low)
 
 
 def test_summarize_seeds_pools_seeds_and_clusters(cheetah_run):

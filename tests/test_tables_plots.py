@@ -114,6 +114,26 @@ def test_save_table_index_and_errors(tmp_path):
     assert not any(p.name.startswith("x") for p in tmp_path.iterdir())
 
 
+def test_a_cell_whose_interval_rests_on_one_seed_says_so_itself(tmp_path):
+    df = pd.DataFrame({"env": ["Ant", "MsPacman", "Seaquest"], "auroc": [0.8123, 0.61, 0.5],
+                       "auroc_ci_low": [0.78, 0.55, np.nan], "auroc_ci_high": [0.84, 0.66, np.nan], "n_seeds": [3, 1, 1]})
+    cells = tables.interval_cells(df, "auroc", "auroc_ci_low", "auroc_ci_high")
+    assert cells.tolist() == ["0.812 [0.780, 0.840]", "0.610 [0.550, 0.660]\u00b9", "0.500\u00b9"]
+    paths = tables.save_table(df, tmp_path / "t", caption="AUROC (1 or 3 seeds).",
+                              intervals={"auroc": ("auroc_ci_low", "auroc_ci_high")})
+    md = paths["md"].read_text()
+    assert md.splitlines()[0] == f"AUROC (1 or 3 seeds). {tables.ONE_SEED_NOTE}."
+    assert "auroc [95% CI]" in md and "0.610 [0.550, 0.660]\u00b9" in md and "auroc_ci_low" not in md
+    assert r"0.610 [0.550, 0.660]$^{1}$" in paths["tex"].read_text()
+    assert pd.read_csv(paths["csv"]).columns.tolist() == df.columns.tolist()  # code reads the three columns apart
+    several = tables.save_table(df[df.n_seeds == 3], tmp_path / "s", caption="AUROC.",
+                                intervals={"auroc": ("auroc_ci_low", "auroc_ci_high")})
+    assert several["md"].read_text().splitlines()[0] == "AUROC."  # no cell of one seed: no footnote
+    empty = tables.save_table(df.iloc[:0], tmp_path / "e", caption="AUROC.",
+                              intervals={"auroc": ("auroc_ci_low", "auroc_ci_high")})
+    assert "auroc [95% CI]" in empty["md"].read_text()
+
+
 # ---------------------------------------------------------------- plots
 def _data_lines(ax) -> list:
     """Lines that draw data (seaborn also parks empty legend proxies on the axes)."""
@@ -333,9 +353,13 @@ def test_protocol_note_describes_the_states_as_collected():
             for e, p, n, c in (("A", "main", 5000, 50), ("B", "appendix", 2000, 5)) for o in ("perturbed", "noise")]
     note = protocol_note(pd.DataFrame(rows))
     assert note == ("states as collected: main-text protocol (section 5) with sampled actions, vote inference for 1 run: "
-                    "5000 OOD states from 50 configurations and 1000 held-out ID states from 10 episodes per run; "
+                    "5000 OOD states from 50 distinct conditions and 1000 held-out ID states from 10 episodes per run; "
                     "appendix G protocol with sampled actions, vote inference for 1 run: 2000 OOD states from 5 "
-                    "configurations and 1000 held-out ID states from 10 episodes per run")
+                    "distinct conditions and 1000 held-out ID states from 10 episodes per run")
+    # envs of one protocol with other numbers of distinct conditions (MsPacman's 50 draws are 3 mazes): each env's
+    mixed = pd.DataFrame(rows).assign(protocol="main", n_ood=5000)
+    mixed.loc[mixed.env == "B", "n_ood_clusters"] = 3
+    assert "5000 OOD states from distinct conditions per env (A 50, B 3) and" in protocol_note(mixed)
     assert protocol_note(pd.DataFrame(rows).drop(columns="protocol")) == "collection protocol not recorded"
 
 
@@ -347,3 +371,22 @@ def test_training_curves_wrap_into_rows_of_four():
     assert [ax.get_title() for ax in fig.axes] == envs  # two unused cells of the 2 x 4 grid are removed
     rows = sorted({round(ax.get_position().y0, 3) for ax in fig.axes})
     assert len(rows) == 2 and sum(ax.get_position().y0 > rows[0] for ax in fig.axes) == 4
+
+
+def test_performance_profiles_draw_a_curve_per_method_and_bands_only_where_there_are_seeds():
+    from paper_lib.reporting.aggregates import profiles_by_env_family
+
+    rows = [{"env": env, "method": m, "seed": s, "auroc": base + 0.1 * s + (0.2 if m == "ms" else 0.0)}
+            for env, base, seeds in (("HalfCheetah-v5", 0.3, (0, 1, 2)), ("MsPacmanNoFrameskip-v4", 0.5, (0,)))
+            for m in ("ms", "drop") for s in seeds]
+    profiles = profiles_by_env_family(pd.DataFrame(rows), "auroc", ["ms", "drop"], n_boot=50)
+    fig = plots.performance_profiles(profiles, "AUROC", reference=0.5)
+    mujoco, atari = fig.axes
+    assert mujoco.get_title().startswith("MuJoCo (3 seeds x 1 envs") and "no band" in atari.get_title()
+    assert len(mujoco.collections) == 2 and len(atari.collections) == 0  # bands: MuJoCo's two methods, none for Atari
+    curves = [ln for ln in _data_lines(mujoco) if len(ln.get_xdata()) > 2]
+    expected = profiles[(profiles.family == "MuJoCo") & (profiles.method == "ms")]
+    np.testing.assert_array_equal(curves[0].get_ydata(), expected["fraction"])
+    assert any(list(ln.get_xdata()) == [0.5, 0.5] for ln in _data_lines(mujoco))  # chance
+    (legend,) = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["ms", "drop"]

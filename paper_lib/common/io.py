@@ -184,6 +184,14 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any, indent: int = 2) -
 
 
 _FILES_STAGE = "paper_lib_files"
+#: Inside an `atomic_files` stage: the journal (the names being moved in, and which had an old file) and the old
+#: files' copies. The journal exists only while the moves run: a stage holding it was stopped part-way.
+_JOURNAL = ".paper_lib_journal.json"
+_OLD = ".paper_lib_old"
+
+
+class MixedFilesError(OSError):
+    """A group of files could be neither moved in whole nor put back: `recover_files` finishes putting it back."""
 
 
 @contextmanager
@@ -193,24 +201,96 @@ def atomic_files(folder: str | os.PathLike[str]) -> Iterator[Path]:
     For a group of files that belong together (one run's outputs) in a folder that may hold other
     files: a failure part-way (a full disk, a crashing writer) moves none of them, so ``folder`` never
     holds one run's files beside another's. Existing files of other names are left alone.
+
+    The moves are all or nothing: before the first, the old files of those names are linked aside and a
+    journal is written; a move that fails puts every old file back (and removes the new ones that had
+    none), and a kill part-way leaves the journal, so the next `atomic_files` or `recover_files` on
+    ``folder`` puts the old group back before anything else.
     """
     target = check_folder_destination(folder)
     target.mkdir(parents=True, exist_ok=True)
-    _remove_ours(target, _FILES_STAGE)
+    recover_files(target)
     stage = _temp_dir(target, _FILES_STAGE)
+    journal = stage / _JOURNAL
     try:
         yield stage
         written = sorted(p for p in stage.iterdir() if p.name != TEMP_MARKER)
         for entry in written:  # every check before the first move: no move may fail half-way through the group
+            if entry.name in (_JOURNAL, _OLD):
+                raise DestinationError(f"{entry.name} is the name of atomic_files' journal; give the file another name")
             if not entry.is_file() or entry.is_symlink():
                 raise DestinationError(f"atomic_files moves files only; {entry.name} is not a file")
             if (target / entry.name).is_dir():
                 raise DestinationError(f"{target / entry.name} is a folder; the file {entry.name} cannot replace it: "
                                        "move the folder away (it was left as it is)")
-        for entry in written:
-            os.replace(entry, target / entry.name)
+        names = [entry.name for entry in written]
+        had_old = _keep_old(target, stage, names)
+        _write_journal(journal, names, had_old)
+        try:
+            for name in names:
+                os.replace(stage / name, target / name)
+        except BaseException as err:
+            try:
+                _put_back(target, stage)
+            except OSError as again:
+                raise MixedFilesError(f"moving the files into {target} failed part-way ({err}), and putting the old "
+                                      f"ones back failed too ({again}); run paper_lib.common.io.recover_files("
+                                      f"{str(target)!r}) to finish putting them back") from err
+            raise
+        journal.unlink()  # every new file is in: nothing left to put back
     finally:
+        if not journal.exists():  # a journal left means the old files are still needed: recover_files uses them
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+def _keep_old(target: Path, stage: Path, names: list[str]) -> list[str]:
+    """Link (or copy) the files the group replaces into the stage, untouched at `target`; return their names."""
+    old = stage / _OLD
+    old.mkdir()
+    had_old = [name for name in names if os.path.lexists(target / name)]
+    for name in had_old:
+        try:
+            os.link(target / name, old / name, follow_symlinks=False)
+        except OSError:  # a file system without hard links
+            shutil.copy2(target / name, old / name, follow_symlinks=False)
+    return had_old
+
+
+def _write_journal(journal: Path, names: list[str], had_old: list[str]) -> None:
+    """Write the journal in one rename: a kill leaves it whole or absent."""
+    part = journal.with_name(journal.name + ".part")
+    part.write_text(json.dumps({"names": names, "had_old": had_old}, sort_keys=True))
+    os.rename(part, journal)
+
+
+def _put_back(target: Path, stage: Path) -> None:
+    """Undo a group's moves from its journal: each old file back, each new file that had none removed. Repeatable."""
+    journal = json.loads((stage / _JOURNAL).read_text())
+    for name in journal["names"]:
+        if name in journal["had_old"]:
+            if os.path.lexists(stage / _OLD / name):
+                os.replace(stage / _OLD / name, target / name)
+        elif not os.path.lexists(stage / name) and os.path.lexists(target / name):
+            os.unlink(target / name)  # moved in, and there was nothing before it
+    (stage / _JOURNAL).unlink()
+
+
+def recover_files(folder: str | os.PathLike[str]) -> list[Path]:
+    """Put back the old files of an `atomic_files` group whose moves a kill stopped part-way, and delete its stage.
+
+    Only stages that carry the marker are touched. Returns the stages it finished; called by every `atomic_files`
+    on `folder` before it writes.
+    """
+    target = Path(folder)
+    if not target.is_dir():
+        return []
+    pattern = _temp_pattern(_FILES_STAGE)
+    stages = sorted(entry for entry in target.iterdir() if pattern.fullmatch(entry.name) and is_ours(entry))
+    for stage in stages:
+        if (stage / _JOURNAL).is_file():
+            _put_back(target, stage)
         shutil.rmtree(stage, ignore_errors=True)
+    return stages
 
 
 # ----------------------------------------------------------------------------- folders

@@ -65,7 +65,8 @@ from paper_lib.common.io import write_text_atomic
 from paper_lib.methods.independent import assemble_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS
 from paper_lib.ood.datasets import StateDataset
-from paper_lib.pipeline.config import PARAMS_FILE, RunConfig, parse_params, validate_params
+from paper_lib.pipeline.config import PARAMS_FILE, RunConfig, check_keys, parse_params, validate_params
+from paper_lib.pipeline.layout import RUN_FOLDERS, combination_name
 from paper_lib.pipeline.stages import collect_run, collect_states
 
 SECTION = "ensembles"
@@ -75,11 +76,13 @@ TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dro
                  "hidden_sizes", "normalize_obs", "normalize_reward", "policy", "algo_kwargs", "linear_lr_decay",
                  "total_timesteps")
 #: What a run needs before it enters the tables, in pipeline order.
-ARTIFACTS = ("checkpoint", "dataset", "evaluation", "scores")
+ARTIFACTS = tuple(RUN_FOLDERS)
+#: How to fix a wrong `ensembles` section, said at the end of each error.
+FIX = "see docs/ensembles.md"
 
 
 def _fail(path: Path, where: str, problem: str) -> ValueError:
-    return ValueError(f"{path}: {SECTION}.{where}: {problem}; see docs/ensembles.md")
+    return ValueError(f"{path}: {SECTION}.{where}: {problem}; {FIX}")
 
 
 def _int_list(value: Any, path: Path, where: str, minimum: int = 0) -> list[int]:
@@ -108,10 +111,6 @@ def combinations(member_seeds: list[int], size: int) -> list[tuple[int, ...]]:
         raise ValueError(f"cannot form ensembles of {size} from {len(member_seeds)} members {member_seeds}; "
                          "use 2 <= ensemble_size <= the number of member seeds")
     return list(itertools.combinations(member_seeds, size))
-
-
-def combination_name(members: tuple[int, ...]) -> str:
-    return "members-" + "-".join(map(str, members))
 
 
 @dataclass(frozen=True)
@@ -167,13 +166,13 @@ class EnsemblesConfig:
         return self.independent.checkpoint_dir(env_id, "baseline", seed)
 
     def combination_dataset(self, env_id: str, members: tuple[int, ...]) -> Path:
-        return self.independent.results / "datasets" / env_id / f"{combination_name(members)}.npz"
+        return self.independent.layout.combination_dataset(env_id, members)
 
     def combination_evaluation(self, env_id: str, members: tuple[int, ...]) -> Path:
-        return self.independent.results / "evaluations" / env_id / f"{combination_name(members)}.csv"
+        return self.independent.layout.combination_evaluation(env_id, members)
 
     def combination_metrics(self, env_id: str, members: tuple[int, ...]) -> Path:
-        return self.independent.results / "scores" / env_id / combination_name(members) / "metrics.csv"
+        return self.independent.layout.combination_metrics(env_id, members)
 
     def own_runs(self) -> list[tuple[str, str, int]]:
         return self.shared.runs()
@@ -209,9 +208,10 @@ def load_ensembles_config(path: str | Path = PARAMS_FILE) -> EnsemblesConfig:
     run = validate_params(parse_params(yaml.safe_dump(params), path), path)
     if not isinstance(section, dict):
         raise ValueError(f"{path} has no `{SECTION}` section (or it is not a mapping); add it, see docs/ensembles.md")
-    rule, profiles = section.get("rule"), section.get("profiles")
-    if not isinstance(rule, dict) or set(rule) != {"budget_fraction", "epochs_factor", "ensemble_size"}:
-        raise _fail(path, "rule", f"must give exactly budget_fraction, epochs_factor and ensemble_size, got {rule!r}")
+    check_keys(section, f"{path}: {SECTION}", ("rule", "profiles"), ("rule", "profiles"), fix=FIX)
+    rule, profiles = section["rule"], section["profiles"]
+    rule_keys = ("budget_fraction", "epochs_factor", "ensemble_size")
+    check_keys(rule, f"{path}: {SECTION}.rule", rule_keys, rule_keys, fix=FIX)
     fraction = rule["budget_fraction"]
     if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
         raise _fail(path, "rule.budget_fraction", f"must be a number in (0, 1], got {fraction!r}")
@@ -223,13 +223,12 @@ def load_ensembles_config(path: str | Path = PARAMS_FILE) -> EnsemblesConfig:
         raise _fail(path, "profiles", f"has no entry for the active profile {run.profile!r}; add "
                                       f"`{run.profile}: {{independent: ..., own_vs_shared: ...}}`")
     entry, where = profiles[run.profile], f"profiles.{run.profile}"
-    if not isinstance(entry, dict) or set(entry) != {"independent", "own_vs_shared"}:
-        raise _fail(path, where, f"must give exactly `independent` and `own_vs_shared`, got {entry!r}")
+    parts = ("independent", "own_vs_shared")
+    check_keys(entry, f"{path}: {SECTION}.{where}", parts, parts, fix=FIX)
     ind, ovs, hps = entry["independent"], entry["own_vs_shared"], run.hyperparameters
-    if not isinstance(ind, dict) or set(ind) != {"envs", "member_seeds", "total_timesteps"}:
-        raise _fail(path, f"{where}.independent", f"must give envs, member_seeds and total_timesteps, got {ind!r}")
-    if not isinstance(ovs, dict) or set(ovs) != {"envs", "methods", "seeds"}:
-        raise _fail(path, f"{where}.own_vs_shared", f"must give envs, methods and seeds, got {ovs!r}")
+    for name, value, keys in (("independent", ind, ("envs", "member_seeds", "total_timesteps")),
+                              ("own_vs_shared", ovs, ("envs", "methods", "seeds"))):
+        check_keys(value, f"{path}: {SECTION}.{where}.{name}", keys, keys, fix=FIX)
     full = ind["total_timesteps"]
     if full is not None and (isinstance(full, bool) or not isinstance(full, int) or full < 1):
         raise _fail(path, f"{where}.independent.total_timesteps", f"must be null or a positive integer, got {full!r}")
@@ -418,8 +417,7 @@ def missing_runs(cfg: EnsemblesConfig) -> pd.DataFrame:
                 if run_has(tree, run, artifact) and not (artifact == "checkpoint" and assignment == "own"
                                                          and own_problem(cfg, *run)):
                     continue
-                path = {"checkpoint": tree.checkpoint_dir(*run), "dataset": tree.dataset_path(*run)}.get(
-                    artifact, tree.results / f"{artifact}s" / env_id / method / f"seed{seed}")
+                path = tree.layout.run_path(artifact, *run)
                 if artifact == "checkpoint":
                     fix = run_command(cfg, assignment, *run)
                 elif assignment == "shared":
@@ -506,7 +504,7 @@ def collect_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
     Combination c (in `cfg.combinations()` order) collects with seed c, through the main pipeline's
     `collect_states` (the same calls and OOD source as every run of the tables); a run with its own seed.
     """
-    _make_dirs(cfg, "datasets")
+    _make_dirs(cfg, "dataset")
     written = []
     for env_id in cfg.envs:
         for c, members in enumerate(cfg.combinations()):
@@ -525,7 +523,7 @@ def evaluate_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
     """Reward episodes and OOD metrics of every combination and own run that has states but not these yet."""
     from paper_lib.pipeline.run_results import evaluate_run, score_run_files
 
-    _make_dirs(cfg, "evaluations", "scores")
+    _make_dirs(cfg, "evaluation", "scores")
     written = []
     for env_id in cfg.envs:
         for c, members in enumerate(cfg.combinations()):
@@ -555,11 +553,11 @@ def evaluate_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
     return written
 
 
-def _make_dirs(cfg: EnsemblesConfig, *kinds: str) -> None:
+def _make_dirs(cfg: EnsemblesConfig, *artifacts: str) -> None:
     """The folders a pipeline stage declares as outputs exist even while no run has reached them."""
     for tree in (cfg.independent, cfg.own):
-        for kind in kinds:
-            (tree.results / kind).mkdir(parents=True, exist_ok=True)
+        for artifact in artifacts:
+            tree.layout.folder(artifact).mkdir(parents=True, exist_ok=True)
 
 
 def _runs_to_do(cfg: EnsemblesConfig, artifact: str) -> list[tuple[RunConfig, tuple[str, str, int]]]:

@@ -20,6 +20,7 @@ import pandas as pd
 
 from paper_lib.common.provenance import file_digest
 from paper_lib.common.recordings import load_recording, save_recording
+from paper_lib.pipeline.layout import QUICKSTART_RUN, Layout
 from paper_lib.reporting.rendering import Frame
 
 #: The member measures the quickstart follows along its episode.
@@ -154,8 +155,7 @@ def load_gravity_episode(path: str | Path, settings: dict[str, Any]) -> GravityE
 
 # ---- the command `make recollect` runs ---------------------------------------------------------------------------
 
-#: The quickstart's agent and its episode's settings, as notebook 00's parameters cell has them.
-QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles", 0)
+#: The quickstart's episode's settings, as notebook 00's parameters cell has them (its agent: layout.QUICKSTART_RUN).
 QUICKSTART_GRAVITY = [0.0, 0.0, -1.0]
 QUICKSTART_SEED, QUICKSTART_FRAMES = 0, 6
 #: Notebook 07's random actions before each picture, and their seed.
@@ -172,7 +172,8 @@ def example_state_envs(profile: str) -> tuple[list[str], list[str]]:
 
 
 def recording_path(results: Path, what: str) -> Path:
-    return Path(results) / "recordings" / f"{what}.npz"
+    """Where recording `what` of the results tree `results` lives (paper_lib.pipeline.layout)."""
+    return Layout(Path(results)).recording(what)
 
 
 def record(what: str, params: str | Path = "params.yaml") -> Path:
@@ -187,7 +188,7 @@ def record(what: str, params: str | Path = "params.yaml") -> Path:
         return save_example_states(out, settings, *play_example_states(mujoco_envs, atari_games, EXAMPLE_STEPS,
                                                                        EXAMPLE_SEED))
     env_id, method, seed = QUICKSTART_RUN
-    folder = cfg.results / "checkpoints" / env_id / method / f"seed{seed}"
+    folder = cfg.checkpoint_dir(env_id, method, seed)
     if not (folder / "model.zip").is_file():
         raise FileNotFoundError(f"{folder} has no model.zip: the quickstart's agent is not trained in profile "
                                 f"{cfg.profile!r}")

@@ -34,7 +34,7 @@ SOURCE_MODULES = tuple(f"paper_lib{suffix}" for suffix in (
     ".methods.policy", ".methods.trpo", ".measures", ".measures.definitions", ".measures.detectors",
     ".measures.estimates", ".agents", ".agents.checkpoints", ".agents.envs", ".agents.factory", ".ood",
     ".ood.atari", ".ood.collect", ".ood.datasets", ".ood.frame_store", ".ood.mujoco", ".ood.pixels", ".pipeline",
-    ".pipeline.config", ".guard", ".guard.cache", ".guard.conformal", ".guard.core", ".guard.experiment",
+    ".pipeline.config", ".pipeline.layout", ".guard", ".guard.cache", ".guard.conformal", ".guard.core", ".guard.experiment",
     ".guard.scores", ".guard.sequential", ".guard.settings", ".guard.shift", ".guard.wrappers"))
 
 

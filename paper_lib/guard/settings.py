@@ -23,7 +23,7 @@ from typing import Any
 
 from paper_lib.guard.conformal import check_alpha, check_confidence, check_window, min_calibration_size
 from paper_lib.guard.scores import SCORE_NAMES
-from paper_lib.pipeline.config import RunConfig, read_params, validate_params
+from paper_lib.pipeline.config import RunConfig, check_keys, read_params, validate_params
 
 SECTION = "guard"
 SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
@@ -87,19 +87,17 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     """Validate the section and merge the profile's budget over the shared settings."""
     if not isinstance(section, dict):
         raise ValueError(f"{where} must be a mapping with {list(SHARED)} and `budgets`, got {section!r}")
-    unknown = sorted(set(section) - set(SHARED) - set(OPTIONAL) - {"budgets"})
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {list(SHARED + OPTIONAL) + ['budgets']}")
+    check_keys(section, where, [*SHARED, *OPTIONAL, "budgets"])
     budgets = section.get("budgets")
-    if not isinstance(budgets, dict) or profile not in budgets or not isinstance(budgets[profile], dict):
+    if isinstance(budgets, dict) and profile in budgets and not isinstance(budgets[profile], dict):
+        raise ValueError(f"{where}.budgets.{profile} must be a mapping "
+                         f"{{{', '.join(f'{k}: ...' for k in BUDGET)}}}, got {budgets[profile]!r}")
+    if not isinstance(budgets, dict) or profile not in budgets:
         have = sorted(budgets) if isinstance(budgets, dict) else []
         raise ValueError(f"{where}.budgets has no mapping for the active profile {profile!r} (has {have}); add "
                          f"`{profile}: {{{', '.join(f'{k}: ...' for k in BUDGET)}}}`")
     budget = budgets[profile]
-    unknown = sorted(set(budget) - set(BUDGET) - {"alpha", "window", "confidence", "seeds"})
-    if unknown:
-        raise ValueError(f"{where}.budgets.{profile}: unknown key(s) {unknown}; known: {list(BUDGET)} "
-                         "(and alpha, window, confidence, seeds)")
+    check_keys(budget, f"{where}.budgets.{profile}", [*BUDGET, "alpha", "window", "confidence", "seeds"])
     seeds = budget.get("seeds")
     if seeds is not None and not (isinstance(seeds, list) and seeds
                                   and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
@@ -110,6 +108,11 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     if missing:
         raise ValueError(f"{where}: {missing} not set for profile {profile!r}; set them in `guard` or in its budget")
     here = f"{where} (profile {profile!r})"
+
+    def key(name: str) -> str:
+        """Where `name` was set: the profile's budget, or the shared section (named so the message points at it)."""
+        return f"{where}.budgets.{profile}.{name}" if name in budget else f"{where}.{name} (profile {profile!r})"
+
     try:
         alpha = check_alpha(merged["alpha"])
         window = check_window(merged["window"])
@@ -125,7 +128,7 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
     combine = _names(merged["combine"], f"{here}: combine")
     if len(combine) == 1:
         raise ValueError(f"{here}: combine needs two or more scores (or [] for none), got {list(combine)}")
-    counts = {k: _int(merged[k], f"{here}: {k}", 1) for k in BUDGET[:-2]}
+    counts = {k: _int(merged[k], key(k), 1) for k in BUDGET[:-2]}
     if counts["fit_episodes"] < 2:
         raise ValueError(f"{here}: fit_episodes must be >= 2 (half fit the detectors, half set the CUSUM drift)")
     need = min_calibration_size(alpha, confidence)
@@ -137,12 +140,12 @@ def parse_settings(section: Any, profile: str, where: str) -> GuardSettings:
         raise ValueError(f"{here}: alpha={alpha:g} at confidence={confidence:g} needs calibration_episodes >= {need} "
                          f"(n >= log(1 - confidence) / log(1 - alpha)), got {counts['calibration_episodes']}; raise it, "
                          "lower the confidence, or leave confidence out for the guarantee on average")
-    steps = _int(merged["episode_steps"], f"{here}: episode_steps", 2)
+    steps = _int(merged["episode_steps"], key("episode_steps"), 2)
     change = merged["change_steps"]
     if not (isinstance(change, list) and len(change) == 2 and all(isinstance(c, int) and not isinstance(c, bool)
                                                                   for c in change)
             and 0 <= change[0] <= change[1] < steps - 1):
-        raise ValueError(f"{here}: change_steps must be [low, high] with 0 <= low <= high < episode_steps - 1 = "
+        raise ValueError(f"{key('change_steps')} must be [low, high] with 0 <= low <= high < episode_steps - 1 = "
                          f"{steps - 1}, got {change!r}")
     if window >= steps:
         raise ValueError(f"{here}: window={window} must be shorter than episode_steps={steps}")
@@ -177,6 +180,9 @@ def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, G
     cfg = validate_params(params, path)
     where = f"{path}: {SECTION}"
     settings = parse_settings(section, cfg.profile, where)
+    budgets = section.get("budgets") if isinstance(section, dict) else None
+    for name in sorted(set(budgets or {}) & set(params["profiles"]) - {cfg.profile}):
+        parse_settings(section, name, where)  # every profile's budget, not the active one's only: `use` switches
     seeds_of = {name: profile.get("seeds") for name, profile in params["profiles"].items() if isinstance(profile, dict)}
     check_budget_seeds(section, {**seeds_of, cfg.profile: list(cfg.seeds)}, where)
     return cfg, settings

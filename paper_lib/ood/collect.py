@@ -55,7 +55,7 @@ from paper_lib.ood.atari import (
     sample_atari_config,
     source_values,
 )
-from paper_lib.ood.datasets import ID_LABEL, NO_CONFIG, OOD_LABEL, StateDataset
+from paper_lib.ood.datasets import ID_LABEL, ID_SOURCE, NO_CONFIG, OOD_LABEL, StateDataset
 from paper_lib.ood.mujoco import (
     SUPPORTED_ENVS,
     PerturbationRanges,
@@ -479,11 +479,11 @@ def collect_id_states(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: 
         env_seed = int(rng.integers(2**31 - 1))
         if game is not None:
             env = make_atari_env_single(game, seed=env_seed)
-            return _Run(_atari_venv(env), "id", None, f"{env_id} (seed {env_seed})",
+            return _Run(_atari_venv(env), ID_SOURCE, None, f"{env_id} (seed {env_seed})",
                         indicator=_indicator_reader(env, game, indicator_source))
         venv = _seeded_venv(make_single_env(env_id), env_seed)
         check = _mujoco_instability if env_id in SUPPORTED_ENVS else None
-        return _Run(venv, "id", None, f"{env_id} (seed {env_seed})", check)
+        return _Run(venv, ID_SOURCE, None, f"{env_id} (seed {env_seed})", check)
 
     buffer, rejected = _collect(actor, next_run, n_states, steps_per_run, max_episode_steps, skip_first, seed)
     protocol = dict(name="id" if protocol_name == "appendix" else "id_main", n_states=int(n_states),

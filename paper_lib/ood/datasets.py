@@ -34,8 +34,28 @@ from paper_lib.ood import frame_store
 FORMAT = "paper_lib.StateDataset/1"  # states stored as they are
 FORMAT_FRAMES = "paper_lib.StateDataset/2"  # frame stacks stored as their lzma-compressed frame sequence
 ID_LABEL, OOD_LABEL = 0, 1
+#: The source of every ID state (the agent in the unmodified env, `collect.collect_id_states`). Every OOD state names
+#: what made it OOD instead ("gravity+wind", "level", "pixels:black", "noise", "atari_head"), so a label that
+#: disagrees with its source is a mix-up, caught by `check_labels`.
+ID_SOURCE = "id"
 NO_CONFIG = -1  # config_index of a state collected in the unmodified env
 NOT_RECORDED = -1  # source_indicator of a state whose collection did not read one
+#: Keys of a configuration's JSON that seed the env's start, not the condition: the MuJoCo and Atari generators
+#: draw one with each configuration, so the same maze or physics values drawn twice differ only there.
+ENV_SEED_KEYS = ("seed",)
+
+
+def condition_key(config_json: str) -> str:
+    """The OOD condition a configuration JSON stands for: its parameters without the env seed (sorted JSON).
+
+    Two configurations with the same parameters (MsPacman's maze 2 drawn twice, with other env
+    seeds) are one condition: their states are no independent evidence, so the cluster bootstrap
+    must resample them together and a count of conditions must count them once.
+    """
+    data = json.loads(config_json)
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if k not in ENV_SEED_KEYS}
+    return json.dumps(data, sort_keys=True)
 
 
 def _json_normalized(obj: Any, what: str) -> Any:
@@ -101,12 +121,30 @@ class StateDataset:
     def __repr__(self) -> str:
         n_ood = int(self.labels.sum())
         return (f"StateDataset({len(self)} states {self.states.shape[1:]} {self.states.dtype}: "
-                f"{len(self) - n_ood} ID, {n_ood} OOD, sources {sorted(set(self.source.tolist()))})")
+                f"{len(self) - n_ood} ID, {n_ood} OOD, {self.n_conditions} distinct OOD conditions, "
+                f"sources {sorted(set(self.source.tolist()))})")
 
     def config_json(self, i: int) -> str | None:
         """The JSON configuration state ``i`` was collected in, None for the unmodified env."""
         k = int(self.config_index[i])
         return None if k == NO_CONFIG else self.configs[k]
+
+    def condition_index(self) -> np.ndarray:
+        """(N,) int: per state, its configuration's condition (``condition_key``), -1 for the unmodified env.
+
+        Configurations with the same parameters share one number (numbered in order of first
+        appearance in ``configs``), so these are the OOD clusters of the bootstrap.
+        """
+        numbers: dict[str, int] = {}
+        of_config = np.array([numbers.setdefault(condition_key(c), len(numbers)) for c in self.configs] + [NO_CONFIG],
+                             dtype=np.int64)
+        return of_config[self.config_index]  # config_index -1 picks the trailing NO_CONFIG
+
+    @property
+    def n_conditions(self) -> int:
+        """How many distinct OOD conditions the states come from (identical configurations count once)."""
+        index = self.condition_index()
+        return int(np.unique(index[index != NO_CONFIG]).size)
 
     def equals(self, other: StateDataset) -> bool:
         """Exact equality of every array, config and metadata entry."""
@@ -184,7 +222,7 @@ class StateDataset:
                 if fmt not in (FORMAT, FORMAT_FRAMES):
                     raise ValueError(f"it has no '{FORMAT}' or '{FORMAT_FRAMES}' format tag")
                 data = {k: f[k] for k in f.files}
-            return cls(
+            dataset = cls(
                 states=_stored_states(data, fmt), labels=data["labels"], source=data["source"],
                 config_index=data["config_index"], episode=data["episode"], step=data["step"],
                 configs=json.loads(str(data["configs"])), metadata=json.loads(str(data["metadata"])),
@@ -193,6 +231,27 @@ class StateDataset:
         except Exception as err:  # zip, npy, lzma, JSON and field errors all mean one thing here
             raise ValueError(f"{path} is not a readable StateDataset ({type(err).__name__}: {err}); the file is "
                              "damaged or was written by something else: delete it and re-run the collection.") from err
+        check_labels(dataset, str(path))
+        return dataset
+
+
+def label_contradictions(dataset: StateDataset) -> np.ndarray:
+    """Boolean mask of the states whose label contradicts their source: labelled ID but of an OOD source, or labelled
+    OOD but of source `ID_SOURCE`."""
+    return (dataset.labels == ID_LABEL) != (dataset.source == ID_SOURCE)
+
+
+def check_labels(dataset: StateDataset, where: str = "the dataset") -> None:
+    """Refuse a dataset whose labels contradict their sources: scored, its OOD states would count as ID (or the
+    reverse) and every AUROC would be wrong without any error. `where` names the file in the message."""
+    wrong = np.flatnonzero(label_contradictions(dataset))
+    if wrong.size:
+        i = int(wrong[0])
+        label = "ID" if dataset.labels[i] == ID_LABEL else "OOD"
+        raise ValueError(f"{where}: {wrong.size} of {len(dataset)} states have a label that contradicts their source "
+                         f"(e.g. state {i}: source {str(dataset.source[i])!r} labelled {label}); ID states, and only "
+                         f"they, come from source {ID_SOURCE!r}: collect the states again (`make recollect`) or "
+                         "correct the labels")
 
 
 def _stored_states(data: dict[str, np.ndarray], fmt: str) -> np.ndarray:

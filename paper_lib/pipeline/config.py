@@ -13,6 +13,7 @@ import argparse
 import copy
 import os
 import stat
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -201,6 +202,25 @@ def parse_params(text: str, path: str | Path = PARAMS_FILE) -> dict[str, Any]:
     return params
 
 
+def check_keys(mapping: Any, where: str, known: Iterable[Any], required: Iterable[Any] = (), *, what: str = "key",
+               fix: str = "copy them from another profile in params.yaml") -> dict[Any, Any]:
+    """`mapping`, once its keys are all `known` and hold every `required` one; else one ValueError naming them.
+
+    Every section of params.yaml is checked with this, so a typo or a missing key reads the same wherever it is
+    made: `<where>: unknown <what>(s) [...]; known: [...]`, or `<where> lacks [...]; <fix>`.
+    """
+    if not isinstance(mapping, dict):
+        raise ValueError(f"{where} must be a mapping (key: value), got {mapping!r}")
+    known = list(known)
+    unknown = sorted(set(mapping) - set(known), key=str)
+    if unknown:
+        raise ValueError(f"{where}: unknown {what}(s) {unknown}; known: {known}")
+    missing = [key for key in required if key not in mapping]
+    if missing:
+        raise ValueError(f"{where} lacks {missing}; {fix}")
+    return mapping
+
+
 def _check_list(value: Any, name: str, where: str) -> list[Any]:
     if not isinstance(value, list) or not value:
         raise ValueError(f"{where}: {name} must be a non-empty list, e.g. [a, b], got {value!r}")
@@ -213,13 +233,7 @@ def validate_profile(profile: Any, where: str, hps: dict[str, Any]) -> None:
     """Keys, types and ranges of one budget profile (or of `run`)."""
     if not isinstance(profile, dict):
         raise ValueError(f"{where} must be a mapping of settings, got {profile!r}")
-    known = set(REQUIRED) | set(OPTIONAL) | {"profile"}
-    unknown = sorted(set(profile) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(known)}")
-    missing = [k for k in REQUIRED if k not in profile]
-    if missing:
-        raise ValueError(f"{where} lacks {missing}; copy them from another profile in params.yaml")
+    check_keys(profile, where, sorted(set(REQUIRED) | set(OPTIONAL) | {"profile"}), REQUIRED, what="setting")
     for env_id in _check_list(profile["envs"], "envs", where):
         if env_id not in hps:
             raise ValueError(f"{where}: unknown env {env_id!r}; params.yaml has hyperparameters for {sorted(hps)}")

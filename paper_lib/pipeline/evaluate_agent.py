@@ -16,6 +16,7 @@ detection error, OOD positive.
 from __future__ import annotations
 
 import argparse
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +30,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 from paper_lib.agents.checkpoints import check_loadable_algorithm, zip_algorithm
 from paper_lib.agents.envs import is_atari, make_env
 from paper_lib.agents.factory import ALGORITHMS, check_device
-from paper_lib.common.io import atomic_files, check_folder_destination, write_text_atomic
+from paper_lib.common.io import (MixedFilesError, atomic_files, check_folder_destination, recover_files,
+                                 write_text_atomic)
 from paper_lib.ood.atari import ATARI_GAMES
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import StateDataset, concat
@@ -107,11 +109,37 @@ def load_vecnormalize(path: str | Path, env_id: str, seed: int) -> VecNormalize:
     if not path.is_file():
         raise FileNotFoundError(f"no VecNormalize at {path}: give the .pkl that VecNormalize.save() wrote")
     try:
-        venv = VecNormalize.load(str(path), make_env(env_id, 1, seed))
+        with open(path, "rb") as f:
+            venv = pickle.load(f)  # what VecNormalize.load does, with the env check in between
+        if not isinstance(venv, VecNormalize):
+            raise TypeError(f"it holds a {type(venv).__name__}")
     except Exception as err:
         raise ValueError(f"cannot load {path} as a VecNormalize for {env_id} ({type(err).__name__}: {err})") from err
+    check_vecnormalize(venv, env_id, str(path))
+    venv.set_venv(make_env(env_id, 1, seed))
     venv.training, venv.norm_reward = False, False
     return venv
+
+
+def check_vecnormalize(vecnormalize: VecNormalize, env_id: str, where: str = "the VecNormalize") -> None:
+    """A normalizer of another env would scale the agent's observations with another env's statistics (or fail deep
+    in numpy mid-collection): refuse it before any rollout, naming both envs. A saved one holds no env id, so
+    of two envs with observations of one shape (HalfCheetah, Walker2d: 17) only an in-memory one is told apart."""
+    env = make_env(env_id, 1, 0)
+    shape = env.observation_space.shape
+    env.close()
+    if vecnormalize.observation_space.shape != shape:
+        raise ValueError(f"{where} normalizes observations of shape {vecnormalize.observation_space.shape}, but "
+                         f"{env_id}'s have shape {shape}: it belongs to another env; give the VecNormalize the agent "
+                         f"was trained with on {env_id}")
+    wrapped = getattr(vecnormalize, "venv", None)
+    try:
+        ids = sorted({spec.id for spec in wrapped.get_attr("spec") if spec is not None}) if wrapped is not None else []
+    except (AttributeError, TypeError):  # a VecEnv that cannot say which env it runs
+        ids = []
+    if ids and ids != [env_id]:
+        raise ValueError(f"{where} wraps {', '.join(ids)}, but the agent is evaluated on {env_id}: give the "
+                         f"VecNormalize the agent was trained with on {env_id}")
 
 
 def evaluate_agent(model: BaseAlgorithm | str | Path, env_id: str, *,
@@ -137,6 +165,10 @@ def evaluate_agent(model: BaseAlgorithm | str | Path, env_id: str, *,
     agent = model if isinstance(model, BaseAlgorithm) else load_agent(model, algo)
     if vecnormalize is not None and not isinstance(vecnormalize, VecNormalize):
         vecnormalize = load_vecnormalize(vecnormalize, env_id, seed)
+    elif vecnormalize is not None:
+        check_vecnormalize(vecnormalize, env_id)
+    if out_dir is not None:  # every input checked: a write a kill stopped part-way gets its old files back now,
+        recover_files(out_dir)  # not only after the collection
     mode = ActionMode(deterministic=deterministic, inference="vote")
     common = dict(action_mode=mode, max_episode_steps=budget.max_episode_steps, skip_first=budget.skip_first)
     with th.random.fork_rng(devices=[]):
@@ -188,6 +220,8 @@ def write_outputs(result: AgentEvaluation, out_dir: str | Path, caption: str) ->
             result.dataset.save(stage / "dataset.npz")
             save_table(result.metrics, stage / "ood_metrics", caption=caption)
             write_text_atomic(stage / "roc.csv", result.scores.roc.to_csv(index=False))
+    except MixedFilesError as err:  # not "as it was": say what puts the old files back
+        raise OutputWriteError(str(err)) from err
     except OSError as err:
         raise OutputWriteError(f"writing the results to {out} failed, got {type(err).__name__}: {err}; none of them "
                                f"was moved in, so {out} is as it was: free space or give another --out folder") from err

@@ -24,6 +24,7 @@ import tempfile
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS
 from paper_lib.pipeline.run_list import write_run_list
 from paper_lib.agents.envs import MUJOCO_ENVS
 from paper_lib.pipeline.status import (
@@ -45,14 +46,15 @@ TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturb
 EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
 #: What notebooks 07 and 00 draw from simulation, played once by `make recollect`.
 RECORDING_STAGES = ("record_example_states", "record_quickstart")
-QUICKSTART_RUN = ("HalfCheetah-v5", "masksembles")
-#: The two parts of notebook 11; each is scored and tabled as soon as it has runs, without waiting for the other.
-ENSEMBLE_PARTS = ("independent", "own")
-ENSEMBLE_FOLDERS = ("checkpoints", "datasets", "evaluations", "scores")
 
 
 def _has_files(folder: Path) -> bool:
     return folder.is_dir() and any(path.is_file() for path in folder.rglob("*"))
+
+
+def _ensembles_trained(cfg: RunConfig) -> bool:
+    """Whether either ensembles part has a trained run: each is scored and tabled without waiting for the other."""
+    return any(_has_files(cfg.layout.part(part).folder("checkpoint")) for part in ENSEMBLE_PARTS)
 
 
 def make_ensemble_folders(cfg: RunConfig) -> None:
@@ -62,8 +64,8 @@ def make_ensemble_folders(cfg: RunConfig) -> None:
     folders would block both stages; an empty folder hashes the same on every clone.
     """
     for part in ENSEMBLE_PARTS:
-        for kind in ENSEMBLE_FOLDERS:
-            (cfg.results / part / kind).mkdir(parents=True, exist_ok=True)
+        for artifact in RUN_FOLDERS:
+            cfg.layout.part(part).folder(artifact).mkdir(parents=True, exist_ok=True)
 
 
 def _env() -> dict[str, str]:
@@ -102,21 +104,21 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
         "ood": bool(scored),
         "uncertainty_over_time": any(run[1] != "baseline" for run in scored),
         "training_and_perturbations": bool(available_runs(cfg, "checkpoint")),
-        "example_states": (cfg.results / "recordings" / "example_states.npz").is_file(),
-        "quickstart": (cfg.results / "recordings" / "quickstart.npz").is_file(),
+        "example_states": cfg.layout.recording("example_states").is_file(),
+        "quickstart": cfg.layout.recording("quickstart").is_file(),
     }
     ready["paper_vs_us"] = ready["rewards"] and ready["ood"]
-    results = cfg.results
-    ready["study"] = (results / "studies" / "studies.db").is_file()
-    ready["scaling"] = (results / "scaling").is_dir()
-    ready["ensembles"] = (results / "scores").is_dir() and any(_has_files(results / part / "scores")
-                                                                for part in ENSEMBLE_PARTS)
+    layout = cfg.layout
+    ready["study"] = layout.studies_db.is_file()
+    ready["scaling"] = layout.scaling.is_dir()
+    ready["ensembles"] = layout.folder("scores").is_dir() and any(_has_files(layout.part(part).folder("scores"))
+                                                                   for part in ENSEMBLE_PARTS)
     why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
            "uncertainty_over_time": "no member-method run has scores",
            "training_and_perturbations": "no run has a checkpoint", "paper_vs_us": "it needs both rewards and ood",
            "example_states": "its frames are not recorded yet (`make recollect`)",
            "quickstart": "its episode is not recorded yet (`make recollect`; its agent is "
-                         f"{' '.join(QUICKSTART_RUN)} seed 0)",
+                         f"{QUICKSTART_RUN[0]} {QUICKSTART_RUN[1]} seed {QUICKSTART_RUN[2]})",
            "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
            "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
            "ensembles": "it needs scored independent ensembles or own runs, and scored shared runs "
@@ -126,13 +128,12 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
 
 def experiment_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
     """(experiment stages whose inputs exist, lines saying why the others cannot run yet)."""
-    results = cfg.results
     mujoco_members = [run for run in available_runs(cfg, "checkpoint")
                       if run[0] in MUJOCO_ENVS and run[1] != "baseline"]
     ready = {"guard": bool(available_runs(cfg, "checkpoint")),
              "spawn": bool(mujoco_members),
              "value_level": bool(available_runs(cfg, "checkpoint", "dataset")),
-             "ensembles_scores": any(_has_files(results / part / "checkpoints") for part in ENSEMBLE_PARTS)}
+             "ensembles_scores": _ensembles_trained(cfg)}
     why = {"guard": "no run has a checkpoint", "spawn": "no MuJoCo member-method run has a checkpoint",
            "value_level": "no run has a checkpoint and a dataset",
            "ensembles_scores": "no independent members or own runs trained yet (`python -m paper_lib.experiments.ensembles queue`)"}
@@ -153,7 +154,7 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     if runs:
         _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
               *[f"score@{stage_suffix(*run)}" for run in runs]])
-    if any(_has_files(cfg.results / part / "checkpoints") for part in ENSEMBLE_PARTS):
+    if _ensembles_trained(cfg):
         make_ensemble_folders(cfg)  # the ensembles notebook's declared inputs
     stages, skipped = table_stages(cfg)
     for line in skipped:
@@ -203,7 +204,7 @@ def recollect(cfg: RunConfig) -> None:
 
 def _recollect(cfg: RunConfig, runs: list) -> None:
     recordings = [stage for stage in RECORDING_STAGES
-                  if stage != "record_quickstart" or has(cfg, (*QUICKSTART_RUN, 0), "checkpoint")]
+                  if stage != "record_quickstart" or has(cfg, QUICKSTART_RUN, "checkpoint")]
     _dvc(["repro", "--single-item", "--force", *recordings,
           *[f"{stage}@{stage_suffix(*run)}" for run in runs for stage in ("collect", "evaluate")]])
     experiments, skipped = experiment_stages(cfg)

@@ -19,7 +19,7 @@ import yaml
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.status import Run, available_runs, stage_suffix
+from paper_lib.pipeline.layout import Run, stage_suffix  # not status: `config use` imports this module
 
 RUN_LIST = "runs.yaml"
 KEY = "committed_runs"
@@ -53,7 +53,7 @@ def read_run_list(root: str | Path = ".") -> tuple[str | None, list[Run]]:
 def write_run_list(cfg: RunConfig, extra: list[Run] = ()) -> tuple[Path, bool]:
     """Write runs.yaml with the runs that have a checkpoint plus `extra`; (path, whether its bytes changed)."""
     path = cfg.root / RUN_LIST
-    text = run_list_text(cfg, [*available_runs(cfg, "checkpoint"), *extra])
+    text = run_list_text(cfg, [*(run for run in cfg.runs() if cfg.layout.has_checkpoint(*run)), *extra])
     changed = not path.is_file() or path.read_text() != text
     if changed:
         write_text_atomic(path, text)

@@ -18,11 +18,16 @@ Files (profile P, env E, method M, seed S):
                               replicates.npy  AUROC bootstrap replicates, row i for metrics.csv row i
                               source_coverage.csv  Atari only: did the ID rollouts reach the OOD source's
                                                    game states (paper_lib.ood.coverage), one row
+                              provenance.json  what the scores were made from: the run, and the SHA-256 of its
+                                               dataset and checkpoint files (readers refuse scores whose
+                                               inputs changed since; `provenance` writes it for older scores)
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +36,11 @@ import pandas as pd
 import torch as th
 
 from paper_lib.agents.envs import is_atari
-from paper_lib.common.io import atomic_dir, write_text_atomic
+from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic,
+                                 write_text_atomic)
+from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.layout import Layout
 
 #: FPR values at which each ROC curve is kept (the TPR reachable at FPR <= x).
 ROC_GRID = np.linspace(0.0, 1.0, 201)
@@ -41,14 +49,19 @@ SCORE_FILES = ("metrics.csv", "roc.csv", "over_time.csv", "perturbation_ratios.c
 ATARI_SCORE_FILES = ("source_coverage.csv",)
 OVER_TIME_MEASURES = ("value_std", "policy_std", "policy_js")
 OVER_TIME_STATES = 1000  # ID states, then OOD states, kept per run for the over-time figures
+#: What a scores folder was made from (`score_provenance`): the run, and the SHA-256 of its dataset and checkpoint.
+PROVENANCE_FILE = "provenance.json"
+PROVENANCE_FORMAT = "paper_lib.ScoreProvenance/1"
 
 
 def evaluation_path(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
-    return cfg.results / "evaluations" / env_id / method / f"seed{seed}.csv"
+    """One run's reward episodes; `cfg` needs only its `results` folder (a tree of paper_lib.pipeline.layout)."""
+    return Layout(cfg.results).evaluation_path(env_id, method, seed)
 
 
 def scores_dir(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
-    return cfg.results / "scores" / env_id / method / f"seed{seed}"
+    """One run's scores folder; `cfg` needs only its `results` folder."""
+    return Layout(cfg.results).scores_dir(env_id, method, seed)
 
 
 def score_files(env_id: str) -> tuple[str, ...]:
@@ -157,13 +170,142 @@ def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, m
             raise _identity_error(path, found, env_id, method, seed)
 
 
+# ----------------------------------------------------------------------------- provenance: scores <- their inputs
+
+#: The files of a run that its scores are made from, by the name `provenance.json` records each under; the
+#: checkpoint's normalizer only where the checkpoint has one.
+CHECKPOINT_INPUTS = ("model.zip", "vecnormalize.pkl")
+_DIGESTS: dict[tuple[int, int, int, int], str] = {}  # (device, inode, size, mtime) -> SHA-256: tables read a run often
+
+
+def _digest(path: Path) -> str:
+    """`file_digest`, computed once per version of a file (the stat key changes when the file does)."""
+    st = os.stat(path)
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    if key not in _DIGESTS:
+        _DIGESTS[key] = file_digest(path)
+    return _DIGESTS[key]
+
+
+def provenance_inputs(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Path]:
+    """Where the files a run's scores are made from sit now: its dataset, its checkpoint's model.zip and normalizer."""
+    checkpoint = cfg.checkpoint_dir(env_id, method, seed)
+    return {"dataset": cfg.dataset_path(env_id, method, seed),
+            **{name: checkpoint / name for name in CHECKPOINT_INPUTS}}
+
+
+def score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any]:
+    """What the run's scores are made from, as `provenance.json` holds it: no time and no path, so scoring the same
+    files again gives the same bytes. A missing dataset or model.zip is one error naming it."""
+    inputs = provenance_inputs(cfg, env_id, method, seed)
+    for name in ("dataset", "model.zip"):
+        if not inputs[name].is_file():
+            raise FileNotFoundError(f"{inputs[name]} is missing: the scores of {env_id} {method} seed {seed} are made "
+                                    "from it; put it back (`make recollect` collects a dataset again)")
+    digests = {name: _digest(path) for name, path in inputs.items() if path.is_file()}
+    return {"format": PROVENANCE_FORMAT, "env": env_id, "method": method, "seed": seed, "sha256": digests}
+
+
+def _read_provenance(path: Path) -> dict[str, Any]:
+    try:
+        recorded = json.loads(path.read_text())
+        if not (isinstance(recorded, dict) and recorded.get("format") == PROVENANCE_FORMAT
+                and isinstance(recorded.get("sha256"), dict)):
+            raise ValueError(f"not a {PROVENANCE_FORMAT} record")
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise ValueError(f"{path} is not a readable provenance record ({err}); score the run again, or write the "
+                         "record from its current files (`python -m paper_lib.pipeline.run_results provenance <env> "
+                         "<method> <seed>`)") from None
+    return recorded
+
+
+def check_score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> None:
+    """Scores at a run's path must have been made from that run's current dataset and checkpoint.
+
+    Checked where the scores folder has its `provenance.json` (scores made before it was recorded have none): the run
+    it names must be this one, and each input file present now must have the SHA-256 recorded. An input missing
+    here (a checkout without datasets) cannot be compared and is passed over.
+    """
+    folder = scores_dir(cfg, env_id, method, seed)
+    path = folder / PROVENANCE_FILE
+    if not path.is_file():
+        return
+    recorded = _read_provenance(path)
+    if (recorded.get("env"), recorded.get("method"), recorded.get("seed")) != (env_id, method, seed):
+        raise _identity_error(path, recorded, env_id, method, seed)
+    inputs = provenance_inputs(cfg, env_id, method, seed)
+    present = {"dataset": inputs["dataset"].is_file(),
+               **dict.fromkeys(CHECKPOINT_INPUTS, inputs["model.zip"].is_file())}  # the checkpoint as a whole
+    for name, file in inputs.items():
+        if not present[name]:
+            continue
+        want, now = recorded["sha256"].get(name), _digest(file) if file.is_file() else None
+        if want != now:
+            raise ValueError(f"the scores {folder} were made from {name} SHA-256 {_short(want)}, but {file} is now "
+                             f"{_short(now)}: they are stale or another run's; score the run again "
+                             f"(`python -m paper_lib.pipeline.run_results score {env_id} {method} {seed}`)")
+
+
+def _short(digest: str | None) -> str:
+    return "none (no such file)" if digest is None else f"{digest[:12]}..."
+
+
+def check_scores_destination(folder: Path, env_id: str) -> Path:
+    """The score stage replaces its folder whole: refuse a file or a link there, or a folder holding files but none
+    of a scores folder's, before any scoring (the swap would delete them)."""
+    check_replaceable_dir(folder, "scores folder")
+    ours = (*score_files(env_id), PROVENANCE_FILE)
+    if folder.is_dir() and any(folder.iterdir()) and not any((folder / name).is_file() for name in ours):
+        raise DestinationError(f"scores folder {folder} holds files but none of a scores folder's ({', '.join(ours)}), "
+                               "and scoring would replace it whole; move those files away (they were left as they are)")
+    return folder
+
+
+def _provenance_to_record(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any] | None:
+    """The record `record_provenance` writes for one run (None: already there), after every check on the run."""
+    folder = scores_dir(cfg, env_id, method, seed)
+    if not (folder / "metrics.csv").is_file():
+        raise FileNotFoundError(f"{folder} holds no scores (no metrics.csv): score the run "
+                                f"(`python -m paper_lib.pipeline.run_results score {env_id} {method} {seed}`)")
+    metrics = pd.read_csv(folder / "metrics.csv")
+    check_evaluation_identity(metrics, folder / "metrics.csv", env_id, method, seed)
+    provenance = score_provenance(cfg, env_id, method, seed)
+    dataset = provenance_inputs(cfg, env_id, method, seed)["dataset"]
+    with np.load(dataset, allow_pickle=False) as data:
+        check_dataset_identity(json.loads(str(data["metadata"])), dataset, env_id, method, seed)
+    path = folder / PROVENANCE_FILE
+    if path.is_file():
+        if _read_provenance(path) == provenance:
+            return None  # already recorded: left untouched
+        check_score_provenance(cfg, env_id, method, seed)  # names the input that differs
+        raise ValueError(f"{path} already records other inputs than {env_id} {method} seed {seed}'s current files; "
+                         "score the run again instead (it was left as it is)")
+    return provenance
+
+
+def record_provenance(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> list[Path]:
+    """Write `provenance.json` into scores folders made before it was recorded, from each run's current files.
+
+    For committed scores whose dataset and checkpoint have not changed since they were scored (what `make verify`
+    shows); nothing is rescored. Every run is checked before any file is written: a folder of another run's scores
+    (metrics.csv names another run), a dataset of another run, a missing input, or a record that already names other
+    inputs is one error, and nothing is written. Returns the records written (runs already recorded are left as
+    they are).
+    """
+    records = {run: _provenance_to_record(cfg, *run) for run in runs}
+    return [write_json_atomic(scores_dir(cfg, *run) / PROVENANCE_FILE, record)
+            for run, record in records.items() if record is not None]
+
+
 def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
-    """Score one run's ID/OOD dataset with every measure and detector; write its four result files at once."""
+    """Score one run's ID/OOD dataset with every measure and detector; write its result files and their provenance
+    at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
     from paper_lib.ood.datasets import StateDataset
     from paper_lib.scoring.ood_scores import score_run
     from paper_lib.scoring.perturbation_bars import perturbation_ratios
 
+    out = check_scores_destination(scores_dir(cfg, env_id, method, seed), env_id)  # before any work
     th.set_num_threads(1)
     th.manual_seed(seed)  # MC Dropout / DropConnect members draw their masks from torch
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
@@ -171,6 +313,7 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     if not path.is_file():
         raise FileNotFoundError(f"dataset {path} is missing; collect it with `dvc repro -s collect@{env_id}-{method}-{seed}` "
                                 "(`make recollect` collects every run's)")
+    provenance = score_provenance(cfg, env_id, method, seed)  # the files as they are when scoring starts
     data = StateDataset.load(path)
     check_dataset_identity(data.metadata, path, env_id, method, seed)
     tag = {"env": env_id, "method": method, "seed": seed}
@@ -187,10 +330,10 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
         from paper_lib.ood.coverage import source_coverage
 
         files["source_coverage.csv"] = source_coverage(data).assign(**tag)
-    out = scores_dir(cfg, env_id, method, seed)
     with atomic_dir(out) as tmp:
         for name, df in files.items():
             (tmp / name).write_text(_csv(df))
+        write_json_atomic(tmp / PROVENANCE_FILE, provenance)
         # AUROC bootstrap replicates, one row per metrics.csv row, for intervals that pool seeds (float32, NaN-padded;
         # .npy has no timestamp, so the same replicates give the same bytes).
         np.save(tmp / "replicates.npy", _replicate_matrix(run.metrics, run.replicates))
@@ -216,14 +359,58 @@ def read_evaluations(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.Dat
     frames = []
     for run in runs:
         path = evaluation_path(cfg, *run)
-        episodes = pd.read_csv(path)
+        episodes = read_evaluation_file(path, *run)
         check_evaluation_identity(episodes, path, *run)
         frames.append(episodes)
     return pd.concat(frames, ignore_index=True)
 
 
+#: The columns `evaluate_run` writes that every episode fills (`member` is empty for combined inference).
+EVALUATION_COLUMNS = ("inference", "deterministic", "member", "reward", "length", "env", "method", "seed")
+
+
+def read_evaluation_file(path: Path, env_id: str, method: str, seed: int) -> pd.DataFrame:
+    """A run's evaluation episodes, refused with one error naming the file where it is not whole.
+
+    A file cut off (a copy or a write interrupted) must not become a reward table of fewer episodes, or an error
+    deep in the statistics: `evaluate_run` ends every file with a line end, writes every column of every episode,
+    and plays as many episodes in each (action mode, inference) as in every other, each action mode of the env.
+    """
+    from paper_lib.scoring.rewards import action_modes
+
+    def incomplete(what: str) -> ValueError:
+        return ValueError(f"{path} is incomplete (cut off?): {what}; evaluate the run again "
+                          f"(`python -m paper_lib.pipeline.run_results evaluate {env_id} {method} {seed}`)")
+
+    if not path.is_file():
+        raise FileNotFoundError(f"no evaluation file {path}: evaluate the run "
+                                f"(`python -m paper_lib.pipeline.run_results evaluate {env_id} {method} {seed}`)")
+    raw = path.read_bytes()
+    if not raw.endswith(b"\n"):
+        raise incomplete("it is empty" if not raw else "its last line ends mid-row")
+    try:
+        episodes = pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError) as err:  # pandas' parser errors are ValueErrors
+        raise incomplete(f"it is not a readable CSV ({type(err).__name__}: {' '.join(str(err).split())})") from None
+    missing = [c for c in EVALUATION_COLUMNS if c not in episodes]
+    if missing:
+        raise incomplete(f"it lacks the column(s) {missing}")
+    if episodes.empty:
+        raise incomplete("it holds a header but no episode")
+    empty = [c for c in EVALUATION_COLUMNS if c != "member" and episodes[c].isna().any()]
+    if empty:
+        raise incomplete(f"some episodes have no {', '.join(empty)}")
+    counts = episodes.groupby(["deterministic", "inference"], sort=False).size()  # in the order played
+    expected = {(d, i) for d in action_modes(env_id) for i in set(episodes["inference"])}
+    if set(counts.index) != expected or counts.nunique() != 1:
+        found = ", ".join(f"{n} {i} {'deterministic' if d else 'sampled'}" for (d, i), n in counts.items())
+        raise incomplete(f"each action mode and inference needs as many episodes as the others, got {found}")
+    return episodes
+
+
 def read_replicates(cfg: RunConfig, run: tuple[str, str, int]) -> dict[tuple[str, str], np.ndarray]:
     """One run's AUROC bootstrap replicates per (ood_set, measure), e.g. for `metrics.seed_cluster_ci` over seeds."""
+    check_score_provenance(cfg, *run)
     folder = scores_dir(cfg, *run)
     metrics, matrix = pd.read_csv(folder / "metrics.csv"), np.load(folder / "replicates.npy")
     return {(o, m): row[~np.isnan(row)].astype(float) for o, m, row in zip(metrics["ood_set"], metrics["measure"], matrix)}
@@ -235,9 +422,12 @@ def read_all_replicates(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> dic
 
 
 def read_scores(cfg: RunConfig, runs: list[tuple[str, str, int]], name: str) -> pd.DataFrame:
-    """One of the score files (`metrics`, `roc`, `over_time`, `perturbation_ratios`) of `runs`, concatenated."""
+    """One of the score files (`metrics`, `roc`, `over_time`, `perturbation_ratios`) of `runs`, concatenated; scores
+    whose provenance names other inputs than the run's current files are refused (`check_score_provenance`)."""
     if f"{name}.csv" not in SCORE_FILES:
         raise ValueError(f"unknown score file {name!r}; use one of {[f[:-4] for f in SCORE_FILES]}")
+    for run in runs:
+        check_score_provenance(cfg, *run)
     frames = [pd.read_csv(scores_dir(cfg, *run) / f"{name}.csv") for run in runs]
     frames = [f for f in frames if not f.empty] or frames[:1]
     return pd.concat(frames, ignore_index=True)
@@ -247,6 +437,9 @@ def read_source_coverage(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd
     """The source coverage rows (one per run) of the Atari runs among `runs`, for a table; empty if none."""
     from paper_lib.ood.coverage import COVERAGE_COLUMNS
 
+    for run in runs:
+        if is_atari(run[0]):
+            check_score_provenance(cfg, *run)
     paths = [scores_dir(cfg, *run) / ATARI_SCORE_FILES[0] for run in runs if is_atari(run[0])]
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
@@ -258,18 +451,34 @@ def read_source_coverage(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Per-run results: reward episodes (evaluate) and OOD scores (score).")
-    parser.add_argument("stage", choices=("evaluate", "score"))
-    parser.add_argument("env_id")
-    parser.add_argument("method")
-    parser.add_argument("seed", type=int)
+    parser = argparse.ArgumentParser(description="Per-run results: reward episodes (evaluate) and OOD scores (score); "
+                                                 "`provenance` records what existing scores were made from (every "
+                                                 "scored run of the profile, or the one given), rescoring nothing.")
+    parser.add_argument("stage", choices=("evaluate", "score", "provenance"))
+    parser.add_argument("env_id", nargs="?")
+    parser.add_argument("method", nargs="?")
+    parser.add_argument("seed", type=int, nargs="?")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
+    given = [a is not None for a in (args.env_id, args.method, args.seed)]
+    if not all(given) and (any(given) or args.stage != "provenance"):
+        parser.error(f"{args.stage} needs a run: <env_id> <method> <seed>"
+                     + (" (or none: every scored run of the profile)" if args.stage == "provenance" else ""))
     try:
         cfg = load_run_config(args.params)
+        if args.stage == "provenance" and not any(given):
+            runs = [run for run in cfg.runs() if (scores_dir(cfg, *run) / "metrics.csv").is_file()]
+            written = record_provenance(cfg, runs)
+            print(f"{len(written)} provenance record(s) written, {len(runs) - len(written)} already there "
+                  f"({len(runs)} scored runs of profile {cfg.profile!r})")
+            return
         if (args.env_id, args.method, args.seed) not in cfg.runs():
             raise ValueError(f"{args.env_id} {args.method} seed {args.seed} is not a run of profile {cfg.profile!r} "
                              f"(envs {cfg.envs}, methods {cfg.methods}, seeds {cfg.seeds})")
+        if args.stage == "provenance":
+            written = record_provenance(cfg, [(args.env_id, args.method, args.seed)])
+            print(written[0] if written else "already recorded")
+            return
         stage = evaluate_run if args.stage == "evaluate" else score_run_files
         print(stage(cfg, args.env_id, args.method, args.seed))
     except (ValueError, FileNotFoundError) as err:

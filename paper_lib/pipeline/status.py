@@ -21,9 +21,9 @@ import pandas as pd
 from paper_lib.agents.envs import is_atari
 from paper_lib.common.io import write_text_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.layout import Layout, Run, stage_suffix  # stage_suffix: re-exported
 from paper_lib.pipeline.run_results import evaluation_path, score_files, scores_dir
 
-Run = tuple[str, str, int]
 #: What a run can have, in pipeline order, and the command that makes each.
 ARTIFACTS = {
     "checkpoint": "make retrain (hours) or `dvc repro -s train@{stage}`",
@@ -33,16 +33,10 @@ ARTIFACTS = {
 }
 
 
-def stage_suffix(env_id: str, method: str, seed: int) -> str:
-    """The `<env>-<method>-<seed>` part of a matrix stage name in dvc.yaml."""
-    return f"{env_id}-{method}-{seed}"
-
-
 def has(cfg: RunConfig, run: Run, artifact: str) -> bool:
     """Whether `run` has `artifact` (one of ARTIFACTS) on disk."""
     if artifact == "checkpoint":
-        folder = cfg.checkpoint_dir(*run)
-        return (folder / "model.zip").is_file() and (folder / "config.json").is_file()
+        return cfg.layout.has_checkpoint(*run)
     if artifact == "dataset":
         return cfg.dataset_path(*run).is_file()
     if artifact == "evaluation":
@@ -215,7 +209,7 @@ def write_status(cfg: RunConfig, stale: set[str] | None = None) -> Path:
     text += (["Missing:", ""] + [f"- {line}" for line in lines] if lines else ["Nothing is missing."]) + [""]
     text += [f"- {line}" for line in stale_lines(table)] + ([""] if stale_lines(table) else [])
     text += [table.to_markdown(index=False), ""]
-    return write_text_atomic(cfg.results / "runs.md", "\n".join(text))
+    return write_text_atomic(Layout(cfg.results).status_file, "\n".join(text))
 
 
 def queue_lines(cfg: RunConfig, resume_root: str | None = None, envs: list[str] | None = None,

@@ -1,6 +1,6 @@
 """Across envs, as rliable aggregates (Agarwal et al. 2021, "Deep RL at the Edge of the Statistical Precipice"):
-interquartile mean (IQM) and mean over all runs of all envs, with stratified-bootstrap intervals, and the
-probability that one method improves on another.
+interquartile mean (IQM) and mean over all runs of all envs, with stratified-bootstrap intervals, the
+probability that one method improves on another, and performance profiles (the fraction of runs above each score).
 
 A method's scores form a (runs, envs) matrix: one column per env, one row per seed. The stratified bootstrap
 resamples the runs of each env apart (with replacement), so every env keeps its weight. rliable itself does not
@@ -138,3 +138,68 @@ def by_env_family(scores: pd.DataFrame, value: str, methods: list[str], n_boot: 
     columns = ["family", *AGGREGATE_COLUMNS, "envs"], ["family", *IMPROVEMENT_COLUMNS]
     return tuple(pd.concat(parts, ignore_index=True)[cols] if parts else pd.DataFrame(columns=cols)
                  for parts, cols in zip((aggregates, improvements), columns))
+
+
+# ------------------------------------------------------------------------------------- performance profiles
+
+#: The columns of `performance_profile` and `profiles_by_env_family` (the latter adds family and envs).
+PROFILE_COLUMNS = ["method", "tau", "fraction", "fraction_low", "fraction_high", "n_envs", "seeds_per_env"]
+
+
+def score_distribution(matrix: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Per tau, the fraction of all runs of all envs whose score exceeds tau (rliable's run-score distribution).
+
+    Pooling the runs weighs every env equally because every env has the same number of runs
+    (`score_matrices`); a whole curve shows what one number (IQM, mean) hides: how the runs spread.
+    """
+    scores = np.asarray(matrix, dtype=float).ravel()
+    return (scores[None, :] > np.asarray(taus, dtype=float)[:, None]).mean(axis=1)
+
+
+def profile_taus(matrices: dict[str, np.ndarray], n: int = 101) -> np.ndarray:
+    """`n` thresholds from just below the lowest to the highest score of any method (a 2% margin of their range
+    below), so every method's curve runs from 1 down to 0."""
+    scores = np.concatenate([np.asarray(m, dtype=float).ravel() for m in matrices.values()])
+    low, high = float(scores.min()), float(scores.max())
+    return np.linspace(low - 0.02 * (high - low or 1.0), high, n)
+
+
+def performance_profile(matrices: dict[str, np.ndarray], taus: np.ndarray, n_boot: int, seed: int = 0,
+                        level: float = 0.95) -> pd.DataFrame:
+    """Each method's score distribution at every tau, with a pointwise stratified-bootstrap percentile band.
+
+    One seed per env has no band (NaN), as the aggregate tables have no interval there: resampling
+    one run per env only repeats it.
+    """
+    taus = np.asarray(taus, dtype=float)
+    parts = []
+    for method, matrix in matrices.items():
+        rng = cell_rng(seed, "profile", method)
+        if matrix.shape[0] < 2:
+            low = high = np.full(taus.shape, np.nan)
+        else:
+            boot = np.array([score_distribution(stratified_resample(matrix, rng), taus) for _ in range(n_boot)])
+            low, high = np.percentile(boot, [50 * (1 - level), 50 * (1 + level)], axis=0)
+        parts.append(pd.DataFrame({"method": method, "tau": taus, "fraction": score_distribution(matrix, taus),
+                                   "fraction_low": low, "fraction_high": high, "n_envs": matrix.shape[1],
+                                   "seeds_per_env": matrix.shape[0]}))
+    return pd.concat(parts, ignore_index=True)[PROFILE_COLUMNS] if parts else pd.DataFrame(columns=PROFILE_COLUMNS)
+
+
+def profiles_by_env_family(scores: pd.DataFrame, value: str, methods: list[str], n_boot: int, seed: int = 0,
+                           taus: np.ndarray | None = None) -> pd.DataFrame:
+    """`performance_profile` of `value`, MuJoCo and Atari apart (as `by_env_family`), with family and envs columns;
+    `taus` default to each family's own score range (`profile_taus`)."""
+    from paper_lib.agents.envs import is_atari
+
+    parts = []
+    for family, part in scores.groupby(scores["env"].map(lambda e: "Atari" if is_atari(e) else "MuJoCo"), sort=False):
+        present = [m for m in methods if m in set(part["method"])]
+        matrices = score_matrices(part, value, present)
+        if not matrices:
+            continue
+        grid = profile_taus(matrices) if taus is None else taus
+        parts.append(performance_profile(matrices, grid, n_boot, seed).assign(
+            family=family, envs=", ".join(complete_envs(part, present))))
+    columns = ["family", *PROFILE_COLUMNS, "envs"]
+    return pd.concat(parts, ignore_index=True)[columns] if parts else pd.DataFrame(columns=columns)

@@ -128,9 +128,21 @@ def protocol_note(metrics: pd.DataFrame) -> str:
     parts = []
     for (name, actions), g in rows.groupby(["protocol", rows.get("actions", "actions unknown")], sort=False):
         parts.append(f"{PROTOCOL_NAMES.get(name, str(name))} with {actions} for {len(g)} run{'s' if len(g) != 1 else ''}: "
-                     f"{_span(g['n_ood'])} OOD states from {_span(g['n_ood_clusters'])} configurations and "
+                     f"{_span(g['n_ood'])} OOD states from {_conditions(g)} and "
                      f"{_span(g['n_id'])} held-out ID states from {_span(g['n_id_clusters'])} episodes per run")
     return "states as collected: " + "; ".join(parts)
+
+
+def _conditions(rows: pd.DataFrame) -> str:
+    """'50 distinct conditions', or per env where they differ ('distinct conditions per env (A 50, B 3)').
+
+    n_ood_clusters of a perturbed set counts distinct OOD conditions (identical configurations are
+    one cluster), so a reader sees that MsPacman's interval rests on 3 mazes, not 50 draws.
+    """
+    if rows["n_ood_clusters"].nunique() == 1:
+        return f"{_span(rows['n_ood_clusters'])} distinct conditions"
+    per_env = rows.groupby("env", sort=True)["n_ood_clusters"].agg(_span)
+    return "distinct conditions per env (" + ", ".join(f"{env} {n}" for env, n in per_env.items()) + ")"
 
 
 # ----------------------------------------------------------------------------- intervals and differences

@@ -331,5 +331,41 @@ def pareto_scatter(df: pd.DataFrame) -> Figure:
     return fig
 
 
+def performance_profiles(df: pd.DataFrame, xlabel: str, reference: float | None = None, panel: str = "family",
+                         max_columns: int = 4) -> Figure:
+    """Performance profiles (Agarwal et al. 2021): the fraction of runs scoring above tau, one panel per ``panel``.
+
+    Expects `aggregates.profiles_by_env_family` output (columns method, tau, fraction, fraction_low,
+    fraction_high, seeds_per_env, n_envs and ``panel``): one line per method, its stratified-bootstrap
+    band shaded where it has one (none with one seed per env, which the panel title says). A dotted
+    line marks ``reference`` (chance AUROC 0.5, the baseline's reward 1.0). A curve above another
+    everywhere means more runs above every threshold, whatever threshold a reader cares about.
+    """
+    require_columns(df, ["method", "tau", "fraction", "fraction_low", "fraction_high", "seeds_per_env", "n_envs",
+                         panel], "performance_profiles")
+    panels = list(pd.unique(df[panel]))
+    fig, axes = _grid_figure(len(panels), max_columns)
+    methods = list(pd.unique(df["method"]))
+    colors = dict(zip(methods, sns.color_palette(n_colors=max(1, len(methods)))))
+    handles: dict[str, object] = {}
+    for ax, name in zip(axes, panels):
+        sub = df[df[panel] == name]
+        for method, curve in sub.groupby("method", sort=False):
+            (line,) = ax.plot(curve["tau"], curve["fraction"], color=colors[method], linewidth=1.4, label=method)
+            handles.setdefault(method, line)
+            if curve["fraction_low"].notna().any():
+                ax.fill_between(curve["tau"], curve["fraction_low"], curve["fraction_high"], color=colors[method],
+                                alpha=0.2, linewidth=0)
+        if reference is not None:
+            ax.axvline(reference, color="grey", linestyle=":", linewidth=1)
+        seeds = ", ".join(sorted({f"{int(s)} seed{'s' if s != 1 else ''} x {int(n)} envs"
+                                  for s, n in zip(sub["seeds_per_env"], sub["n_envs"])}))
+        band = "" if sub["fraction_low"].notna().any() else ", no band: one seed per env"
+        ax.set(title=f"{name} ({seeds}{band})", xlabel=xlabel, ylabel="fraction of runs > tau", ylim=(-0.02, 1.02))
+        ax.title.set_fontsize("small")
+    fig.legend(list(handles.values()), list(handles), loc="outside center right", frameon=False)
+    return fig
+
+
 __all__ = ["save_figure", "show_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars",
-           "timeline", "image_grid", "pareto_scatter"]
+           "timeline", "image_grid", "pareto_scatter", "performance_profiles"]

@@ -16,6 +16,10 @@ from paper_lib.common.frames import require_columns
 from paper_lib.common.io import write_text_atomic
 
 PLUS_MINUS = "\u00b1"  # "±"
+#: The mark of a table cell whose interval rests on one training seed, and the footnote that says what that means.
+ONE_SEED_MARK = "\u00b9"  # "¹"
+ONE_SEED_NOTE = (f"{ONE_SEED_MARK} one training seed: the interval covers that one run's episodes or states, not the "
+                 "spread between training runs (a hint, not a finding)")
 
 
 def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
@@ -89,7 +93,7 @@ def to_latex(df: pd.DataFrame, caption: str, right: list[bool], label: str | Non
     """Booktabs LaTeX table (needs \\usepackage{booktabs}); cells, headers and caption are escaped."""
 
     def tex(x: object) -> str:
-        return _latex_escape(str(x)).replace(PLUS_MINUS, r"$\pm$")
+        return _latex_escape(str(x)).replace(PLUS_MINUS, r"$\pm$").replace(ONE_SEED_MARK, r"$^{1}$")
 
     safe = df.map(tex).rename(columns=tex)
     styler = safe.style.hide(axis="index")
@@ -99,19 +103,59 @@ def to_latex(df: pd.DataFrame, caption: str, right: list[bool], label: str | Non
     )
 
 
+def interval_cells(df: pd.DataFrame, estimate: str, low: str, high: str, seeds: str | None = "n_seeds",
+                   float_format: str = "%.3f") -> pd.Series:
+    """One shown cell per row: 'estimate [low, high]', marked ONE_SEED_MARK where column ``seeds`` is 1.
+
+    A reader who looks at one cell must see there that its interval rests on one training seed,
+    not only in a caption or a column beside it; an interval that does not exist (NaN) is left out.
+    """
+    missing = [c for c in (estimate, low, high, seeds) if c is not None and c not in df.columns]
+    if missing:  # an empty table (no rows yet) is fine: it shows its header
+        raise ValueError(f"interval_cells: missing column(s) {missing}; the frame has {list(df.columns)}.")
+
+    def number(x: float) -> str:
+        return "NaN" if pd.isna(x) else float_format % x
+
+    cells = [number(e) if pd.isna(lo) or pd.isna(hi) else f"{number(e)} [{number(lo)}, {number(hi)}]"
+             for e, lo, hi in zip(df[estimate], df[low], df[high])]
+    one_seed = (df[seeds] == 1).to_numpy() if seeds else np.zeros(len(df), dtype=bool)
+    return pd.Series([c + ONE_SEED_MARK if one else c for c, one in zip(cells, one_seed)], index=df.index,
+                     dtype=object)
+
+
+def _with_intervals(flat: pd.DataFrame, intervals: dict[str, tuple[str, str]], seeds: str | None,
+                    float_format: str) -> tuple[pd.DataFrame, bool]:
+    """``flat`` with each estimate column shown as its interval cell ('<estimate> [95% CI]') and its bounds dropped;
+    and whether any cell carries the one-seed mark."""
+    shown = flat.copy()
+    marked = False
+    for estimate, (low, high) in intervals.items():
+        cells = interval_cells(flat, estimate, low, high, seeds, float_format)
+        marked |= bool(cells.str.endswith(ONE_SEED_MARK).any())
+        shown[estimate] = cells
+        shown = shown.drop(columns=[low, high]).rename(columns={estimate: f"{estimate} [95% CI]"})
+    return shown, marked
+
+
 def save_table(
     df: pd.DataFrame,
     stem: str | os.PathLike[str],
     caption: str,
     float_format: str = "%.3f",
     label: str | None = None,
+    intervals: dict[str, tuple[str, str]] | None = None,
+    seeds: str | None = "n_seeds",
 ) -> dict[str, Path]:
     """Write ``stem``.csv, .md and .tex atomically; return their paths keyed by format.
 
     The CSV keeps full float precision (it is what code reads back); Markdown and
     LaTeX show floats with ``float_format``. ``caption`` is plain text: it is the
     first line of the .md and is LaTeX-escaped into the .tex caption. A non-default
-    index is written as leading column(s).
+    index is written as leading column(s). ``intervals`` ({estimate: (low, high)}) shows
+    each estimate with its interval in one Markdown/LaTeX cell, marked where column
+    ``seeds`` is 1 (`interval_cells`), and then adds ONE_SEED_NOTE to the caption; the
+    CSV keeps the three columns apart.
     """
     if not isinstance(df, pd.DataFrame) or df.shape[1] == 0:
         raise ValueError(f"save_table: expected a DataFrame with at least one column, got {type(df).__name__}.")
@@ -125,8 +169,12 @@ def save_table(
         ) from None
     flat = df.copy() if _has_default_index(df) else df.reset_index()
     flat.columns = [str(c) for c in flat.columns]
-    shown = _format_cells(flat, float_format)
-    right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) for c in flat.columns]
+    display, marked = _with_intervals(flat, intervals, seeds, float_format) if intervals else (flat, False)
+    if marked:
+        caption = f"{caption.strip()} {ONE_SEED_NOTE}."
+    shown = _format_cells(display, float_format)
+    right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) if c in flat else True
+             for c in display.columns]
     paths = {fmt: _stem_path(stem, f".{fmt}") for fmt in ("csv", "md", "tex")}
     write_text_atomic(paths["csv"], flat.to_csv(index=False, lineterminator="\n"))
     write_text_atomic(paths["md"], f"{caption.strip()}\n\n{to_markdown(shown, right)}\n")

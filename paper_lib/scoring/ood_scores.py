@@ -26,13 +26,14 @@ from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split
 from paper_lib.measures.estimates import policy_features
 from paper_lib.methods.policy import MemberActorCriticPolicy
 from paper_lib.ood.collect import noise_ood_states, score_dataset
-from paper_lib.ood.datasets import NO_CONFIG, StateDataset
+from paper_lib.ood.datasets import NO_CONFIG, StateDataset, check_labels
 from paper_lib.scoring.metrics import measure_metrics, roc_points, seed_cluster_ci
 
 #: What the metrics tables mean, for their captions.
 METRICS_NOTE = ("OOD is the positive class; FPR@95 is the share of ID states flagged when 95% of OOD states are "
                 "caught (OpenOOD's definition); the 95% CI of AUROC is a cluster bootstrap that resamples whole ID "
-                "episodes and whole OOD configurations (and training seeds first, where a cell pools several)")
+                "episodes and whole OOD conditions, identical configurations (the same maze or physics values "
+                "drawn twice) being one (and training seeds first, where a cell pools several)")
 
 
 @dataclass
@@ -67,6 +68,7 @@ def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int 
         rng = np.random.default_rng(seed)
     if isinstance(n_scoring_seeds, bool) or int(n_scoring_seeds) != n_scoring_seeds or n_scoring_seeds < 1:
         raise ValueError(f"n_scoring_seeds={n_scoring_seeds!r}: need a positive integer (e.g. 5).")
+    check_labels(dataset)  # before any work: a label contradicting its source would score OOD states as ID
     model, vecnormalize = _model_and_normalizer(run, vecnormalize, seed % 2**31)
     id_data, ood_data = dataset.id_only(), dataset.ood_only()
     if len(id_data) == 0 or len(ood_data) == 0:
@@ -123,14 +125,17 @@ def _model_and_normalizer(run: Checkpoint | BaseAlgorithm, vecnormalize: VecNorm
 
 
 def _clusters(data: StateDataset, side: str) -> np.ndarray:
-    """One cluster label per state: its OOD configuration, else its episode.
+    """One cluster label per state: its OOD condition, else its episode.
 
-    States derived from ID states (noise, pixels) keep their ID episode, so with side="id"
-    they share their cluster with the ID states they were made from.
+    A condition is a configuration's parameters without its env seed (`StateDataset.condition_index`):
+    MsPacman's 50 configurations are 3 mazes, so 3 clusters, not 50 that the bootstrap would
+    wrongly treat as independent. States derived from ID states (noise, pixels) keep their ID
+    episode, so with side="id" they share their cluster with the ID states they were made from.
     """
+    condition = data.condition_index()
     episode = np.char.add(f"{side}-episode-", data.episode.astype(str))
-    config = np.char.add(f"{side}-config-", data.config_index.astype(str))
-    return np.where(data.config_index != NO_CONFIG, config, episode)
+    labels = np.char.add(f"{side}-condition-", condition.astype(str))
+    return np.where(condition != NO_CONFIG, labels, episode)
 
 
 def _policy_obs(data: StateDataset) -> np.ndarray:

@@ -23,7 +23,8 @@ from paper_lib.agents.factory import ALGO_KEYS, ALGORITHMS
 from paper_lib.measures.definitions import MEMBER_MEASURES
 from paper_lib.methods.networks import METHODS
 from paper_lib.methods.policy import INFERENCE_MODES
-from paper_lib.pipeline.config import PARAMS_FILE, read_params
+from paper_lib.pipeline.config import PARAMS_FILE, check_keys, read_params
+from paper_lib.pipeline.layout import Layout
 from paper_lib.study.space import ParamSpec, parse_space
 
 SAMPLERS = ("tpe", "nsga2", "random")
@@ -46,15 +47,6 @@ def _positive_int(value: Any, where: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{where} must be an integer >= {minimum}, got {value!r}")
     return value
-
-
-def _known(mapping: dict[str, Any], known: tuple[str, ...], where: str, required: tuple[str, ...] = ()) -> None:
-    unknown = sorted(set(mapping) - set(known))
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {list(known)}")
-    missing = [k for k in required if k not in mapping]
-    if missing:
-        raise ValueError(f"{where} lacks {missing}; copy them from another profile in params.yaml")
 
 
 @dataclass(frozen=True)
@@ -122,16 +114,21 @@ class StudyConfig:
     root: Path = Path(".")
 
     @property
+    def layout(self) -> Layout:
+        """Where the profile's artifacts live (paper_lib.pipeline.layout)."""
+        return Layout.of(self.root, self.profile)
+
+    @property
     def results(self) -> Path:
-        return self.root / "results" / self.profile
+        return self.layout.results
 
     @property
     def studies_dir(self) -> Path:
-        return self.results / "studies"
+        return self.layout.studies
 
     def default_storage_url(self) -> str:
         """The embedded local store: one SQLite file per profile (resumes after a kill, opens in optuna-dashboard)."""
-        return f"sqlite:///{(self.studies_dir / 'studies.db').resolve()}"
+        return f"sqlite:///{self.layout.studies_db.resolve()}"
 
     def study(self, name: str) -> StudySpec:
         if name not in self.studies:
@@ -192,10 +189,9 @@ def parse_study_name(name: str) -> tuple[str, str, str]:
 
 
 def _objective(raw: Any, where: str) -> Objective:
-    raw = _mapping(raw, where)
     keys = ("deterministic_reward", "noise_magnitude", "measure", "baseline_measure", "collect_deterministic",
             "inference")
-    _known(raw, keys, where, required=keys)
+    raw = check_keys(raw, where, keys, keys)
     for key in ("deterministic_reward", "collect_deterministic"):
         if not isinstance(raw[key], bool):
             raise ValueError(f"{where}.{key} must be true or false, got {raw[key]!r}")
@@ -220,9 +216,8 @@ def _algo_keys(algo: str, hps: dict[str, Any], env_id: str) -> tuple[str, ...]:
 
 
 def _study_specs(algo: str, entry: Any, space: dict[str, Any], hps: dict[str, Any], where: str) -> list[StudySpec]:
-    entry = _mapping(entry, where)
     keys = ("envs", "methods", "n_trials", "total_timesteps", "fixed", "space")
-    _known(entry, keys, where, required=("envs", "methods", "n_trials", "total_timesteps"))
+    entry = check_keys(entry, where, keys, ("envs", "methods", "n_trials", "total_timesteps"))
     for key in ("envs", "methods"):
         if not isinstance(entry[key], list) or not entry[key] or len(set(entry[key])) != len(entry[key]):
             raise ValueError(f"{where}.{key} must be a non-empty list without repeats, got {entry[key]!r}")
@@ -255,23 +250,20 @@ def _study_specs(algo: str, entry: Any, space: dict[str, Any], hps: dict[str, An
 
 
 def _space(raw: Any, where: str) -> dict[str, Any]:
-    raw = _mapping(raw, where)
-    _known(raw, (*ALGORITHMS, "network", "members"), where, required=("network", "members"))
+    raw = check_keys(raw, where, (*ALGORITHMS, "network", "members"), ("network", "members"))
     algos = {a: parse_space(_mapping(raw[a], f"{where}.{a}"), f"{where}.{a}") for a in ALGORITHMS if a in raw}
     network = parse_space(_mapping(raw["network"], f"{where}.network"), f"{where}.network")
-    _known(network, NETWORK_KEYS, f"{where}.network")
-    members_raw = _mapping(raw["members"], f"{where}.members")
-    _known(members_raw, METHODS, f"{where}.members")
+    check_keys(network, f"{where}.network", NETWORK_KEYS)
+    members_raw = check_keys(raw["members"], f"{where}.members", METHODS)
     members = {}
     for method, entry in members_raw.items():
         members[method] = parse_space(_mapping(entry or {}, f"{where}.members.{method}"), f"{where}.members.{method}")
-        _known(members[method], () if method == "baseline" else MEMBER_KEYS, f"{where}.members.{method}")
+        check_keys(members[method], f"{where}.members.{method}", () if method == "baseline" else MEMBER_KEYS)
     return {"algos": algos, "network": network, "members": members}
 
 
 def _ablations(raw: Any, where: str) -> dict[str, list[str]]:
-    raw = _mapping(raw, where)
-    _known(raw, MEMBER_KEYS, where)
+    raw = check_keys(raw, where, MEMBER_KEYS)
     for axis, methods in raw.items():
         if not isinstance(methods, list) or not set(methods) <= set(METHODS) - {"baseline"}:
             raise ValueError(f"{where}.{axis} must list member methods from {METHODS[1:]}, got {methods!r}")
@@ -284,20 +276,17 @@ def load_study_config(path: str | Path = PARAMS_FILE, profile: str | None = None
     params = read_params(path)
     if "study" not in params:
         raise ValueError(f"{path} has no `study` section; restore it with `git checkout params.yaml`")
-    section = _mapping(params["study"], f"{path}: study")
-    _known(section, PARTS + OPTIONAL_PARTS, f"{path}: study", required=PARTS)
+    section = check_keys(params["study"], f"{path}: study", PARTS + OPTIONAL_PARTS, PARTS)
     profile = profile or (params.get("run") or {}).get("profile")
     budgets = _mapping(section["budgets"], f"{path}: study.budgets")
     budget_key = resolve_budget(params, profile, path, "budgets", sorted(budgets))
     hps = params["hyperparameters"]
     where = f"{path}: study.budgets.{budget_key}"
-    budget = _mapping(budgets[budget_key], where)
     keys = ("seed", "studies", "eval_episodes", "n_id_states", "max_episode_steps", "skip_first", "sampler",
             "heartbeat")
-    _known(budget, keys, where, required=keys)
+    budget = check_keys(budgets[budget_key], where, keys, keys)
     space = _space(section["space"], f"{path}: study.space")
-    studies_raw = _mapping(budget["studies"], f"{where}.studies")
-    _known(studies_raw, tuple(ALGORITHMS), f"{where}.studies")
+    studies_raw = check_keys(budget["studies"], f"{where}.studies", ALGORITHMS)
     studies: dict[str, StudySpec] = {}
     for algo, entry in studies_raw.items():
         if algo not in space["algos"]:
@@ -315,9 +304,8 @@ def load_study_config(path: str | Path = PARAMS_FILE, profile: str | None = None
     sampler = dict(_mapping(budget["sampler"], f"{where}.sampler"))
     if sampler.get("name") not in SAMPLERS:
         raise ValueError(f"{where}.sampler.name={sampler.get('name')!r}; use one of {SAMPLERS} (multi-objective)")
-    beat = _mapping(budget["heartbeat"], f"{where}.heartbeat")
-    _known(beat, ("interval", "grace_period", "max_retry"), f"{where}.heartbeat",
-           required=("interval", "grace_period", "max_retry"))
+    beat_keys = ("interval", "grace_period", "max_retry")
+    beat = check_keys(budget["heartbeat"], f"{where}.heartbeat", beat_keys, beat_keys)
     heartbeat = Heartbeat(_positive_int(beat["interval"], f"{where}.heartbeat.interval"),
                           _positive_int(beat["grace_period"], f"{where}.heartbeat.grace_period"),
                           _positive_int(beat["max_retry"], f"{where}.heartbeat.max_retry", minimum=0))

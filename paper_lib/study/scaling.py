@@ -28,7 +28,8 @@ import pandas as pd
 from paper_lib.common.io import write_json_atomic
 from paper_lib.common.provenance import file_digest
 from paper_lib.methods.networks import METHODS
-from paper_lib.pipeline.config import PARAMS_FILE, read_params
+from paper_lib.pipeline.config import PARAMS_FILE, check_keys, read_params
+from paper_lib.pipeline.layout import Layout
 from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
 
@@ -60,8 +61,7 @@ class ScalingConfig:
     root: Path
 
     def run_dir(self, run: ScalingRun) -> Path:
-        return self.root / "results" / self.profile / "scaling" / run.env_id / run.method / f"w{run.width}" / \
-            f"seed{run.seed}"
+        return Layout.of(self.root, self.profile).scaling_dir(run.env_id, run.method, run.width, run.seed)
 
     def agent_kwargs(self, run: ScalingRun) -> dict[str, Any]:
         return agent_kwargs({"width": run.width}, self.fixed, self.hyperparameters[run.env_id])
@@ -80,9 +80,7 @@ def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = No
     section = ((params.get("study") or {}).get("scaling")) or {}
     budget = resolve_budget(params, profile, path, "scaling", sorted(section))
     where = f"{path}: study.scaling.{budget}"
-    raw = section[budget]
-    if not isinstance(raw, dict) or set(raw) != set(KEYS):
-        raise ValueError(f"{where} must have exactly the keys {list(KEYS)}, got {raw!r}")
+    raw = check_keys(section[budget], where, KEYS, KEYS, fix="copy them from another budget of study.scaling")
     hps = params["hyperparameters"]
     if not isinstance(raw["widths"], dict) or not raw["widths"]:
         raise ValueError(f"{where}.widths must map env ids to lists of widths, e.g. {{Ant-v5: [64, 128]}}")
