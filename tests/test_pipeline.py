@@ -207,7 +207,7 @@ def test_verify_recomputes_committed_results_aside_and_finds_a_changed_number(ti
     before = _git(tiny_repo, "status", "--porcelain")
     done = _run(verify, tiny_repo)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert ("12 of 12 files the same as the committed ones or within tolerance (2 run(s), stages evaluate, score)"
+    assert ("14 of 14 files the same as the committed ones or within tolerance (2 run(s), stages evaluate, score)"
             in done.stdout), done.stdout
     assert _git(tiny_repo, "status", "--porcelain") == before, "verify writes nothing under results/"
 
@@ -226,4 +226,4 @@ def test_verify_recomputes_committed_results_aside_and_finds_a_changed_number(ti
     assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-3000:]
     row = next(line for line in done.stdout.splitlines() if "| metrics.csv" in line)
     assert "numbers differ" in row and "auroc" in row and "0.001" in row, done.stdout
-    assert "4 of 5 files within tolerance" in done.stdout, done.stdout
+    assert "5 of 6 files within tolerance" in done.stdout, done.stdout

@@ -31,7 +31,8 @@ import pandas as pd
 
 from paper_lib.common.provenance import machine
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.run_results import evaluate_run, evaluation_path, score_files, score_run_files, scores_dir
+from paper_lib.pipeline.run_results import (PROVENANCE_FILE, evaluate_run, evaluation_path, score_files,
+                                             score_run_files, scores_dir)
 from paper_lib.pipeline.status import Run, available_runs
 
 STAGES = ("evaluate", "score")
@@ -162,7 +163,8 @@ def verify_run(cfg: RunConfig, run: Run, stages: tuple[str, ...] = ("score",)) -
                 pairs = [(evaluation_path(cfg, *run), evaluation_path(aside, *run))]
             else:
                 score_run_files(aside, *run)
-                pairs = [(scores_dir(cfg, *run) / name, scores_dir(aside, *run) / name) for name in score_files(run[0])]
+                names = (*score_files(run[0]), PROVENANCE_FILE)  # what the scores were made from, too
+                pairs = [(scores_dir(cfg, *run) / name, scores_dir(aside, *run) / name) for name in names]
             seconds = time.perf_counter() - started
             for committed, fresh in pairs:
                 found = compare_files(committed, fresh)
