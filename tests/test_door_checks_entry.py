@@ -527,19 +527,27 @@ with io.atomic_files(sys.argv[1]) as stage:
 """
 
 
-def test_atomic_files_killed_between_two_moves_is_put_back_by_the_next_write(tmp_path):
+def _killed_between_two_moves(tmp_path: Path) -> tuple[Path, subprocess.CompletedProcess[str]]:
+    """An output folder holding OLD_SET, and a real process killed between two moves of writing NEW_SET into it."""
     out = tmp_path / "out"
     out.mkdir()
     for name, text in OLD_SET.items():
         (out / name).write_text(text)
-    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
+    return out, _kill_after_first_move(out)
+
+
+def _kill_after_first_move(out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
                           timeout=120)
+
+
+def test_atomic_files_killed_between_two_moves_is_put_back_by_the_next_write(tmp_path):
+    out, done = _killed_between_two_moves(tmp_path)
     assert done.returncode == 9, done.stderr
     assert (out / "a.csv").read_text() == "new a" and (out / "b.csv").read_text() == "old b"  # the mix a kill leaves
     assert io.recover_files(out) and _contents(out) == OLD_SET  # the old group whole again, nothing else
     assert io.recover_files(out) == []
-    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
-                          timeout=120)
+    _kill_after_first_move(out)
     _write_group(out)  # a new write first puts the old group back, then moves its own in
     assert _contents(out) == {**NEW_SET, "notes.txt": "the user's"}
 
@@ -549,12 +557,7 @@ def test_evaluate_agent_puts_back_a_group_a_kill_left_mixed_before_collecting(tm
     collection that then fails (here: injected) leaves the old group whole, not the mix."""
     from paper_lib.pipeline import evaluate_agent as module
 
-    out = tmp_path / "out"
-    out.mkdir()
-    for name, text in OLD_SET.items():
-        (out / name).write_text(text)
-    done = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_MOVE, str(out)], capture_output=True, text=True,
-                          timeout=120)
+    out, done = _killed_between_two_moves(tmp_path)
     assert done.returncode == 9 and (out / "a.csv").read_text() == "new a", done.stderr
 
     def collection_fails(*args, **kwargs):
