@@ -9,6 +9,16 @@ root=$(git rev-parse --show-toplevel)
 cd "$root"
 py="$root/.venv/bin/python"
 profile=$("$py" -c "from paper_lib.pipeline.config import load_run_config; print(load_run_config().profile)")
+# A run of an env still under `retraining` was trained with that recipe, but its train stage would be recorded
+# against `hyperparameters` (the old runs' recipe): move the entry first, when the env's runs land together.
+retraining=" $("$py" -c "from paper_lib.pipeline.config import read_params; print(' '.join(read_params().get('retraining') or {}))") "
+args=("$@")
+for ((i = 0; i + 2 < ${#args[@]}; i += 3)); do
+  case "$retraining" in *" ${args[i]} "*)
+    echo "error: params.yaml lists ${args[i]} under \`retraining\`: move retraining.${args[i]} into hyperparameters.${args[i]} (its runs were trained with it) and land all of the env's runs together" >&2
+    exit 2 ;;
+  esac
+done
 wt=$(mktemp -d /tmp/land_run.XXXXXX)
 git worktree add -q --detach "$wt" HEAD
 trap 'cd "$root" && git worktree remove --force "$wt"' EXIT

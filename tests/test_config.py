@@ -51,9 +51,25 @@ def test_a_profile_switch_rewrites_the_run_section_only(params):
 
 
 def test_params_hyperparameters_match_the_packaged_paper_table():
-    hps = yaml.safe_load((REPO / "params.yaml").read_text())["hyperparameters"]
-    for env_id, hp in hps.items():
+    """The packaged table is the newest recipe: `retraining`'s where an env is being retrained, else `hyperparameters`."""
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    newest = {**params["hyperparameters"], **(params.get("retraining") or {})}
+    for env_id, hp in newest.items():
         assert hp == paper_hyperparameters(env_id), env_id
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda p: p.update(retraining={"Hopper-v5": {}}), r"retraining: unknown env\(s\) \['Hopper-v5'\]"),
+    (lambda p: p.update(retraining={"Swimmer-v5": p["hyperparameters"]["Swimmer-v5"]}),
+     "retraining.Swimmer-v5 equals hyperparameters.Swimmer-v5: the recipe has landed"),
+    (lambda p: p.update(retraining={"Swimmer-v5": {"n_envs": 4}}), "retraining.Swimmer-v5: lacks"),
+])
+def test_a_bad_retraining_entry_is_refused(params, edit, match):
+    data = yaml.safe_load(params.read_text())
+    edit(data)
+    params.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ValueError, match=match):
+        load_run_config(params)
 
 
 @pytest.mark.parametrize("edit,match", [

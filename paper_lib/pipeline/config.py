@@ -165,7 +165,7 @@ OPTIONAL: tuple[str, ...] = ()
 
 SECTIONS = ("run", "profiles", "hyperparameters")
 #: Sections other parts read with their own loaders (`study`: paper_lib.study.config); kept as they are.
-OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head")
+OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head", "retraining")
 POSITIVE = ("n_id_states", "n_ood_states", "eval_episodes", "max_episode_steps", "n_bootstrap", "ood_configs",
             "id_episodes", "steps_per_config", "n_scoring_seeds")
 
@@ -281,6 +281,7 @@ def validate_params(params: dict[str, Any], path: str | Path = PARAMS_FILE) -> R
             raise ValueError(f"{path}: `{name}` must be a non-empty mapping; restore it with `git checkout params.yaml`")
     for env_id, hp in hps.items():
         validate_hyperparameters(hp, env_id, where=f"{path}: hyperparameters.{env_id}")
+    check_retraining(params.get("retraining"), hps, path)
     for name, profile in profiles.items():
         validate_profile(profile, f"{path}: profiles.{name}", hps)
         if isinstance(profile, dict) and "profile" in profile:
@@ -305,6 +306,22 @@ def validate_params(params: dict[str, Any], path: str | Path = PARAMS_FILE) -> R
                     from None
     return RunConfig(profile=profile, **{k: run[k] for k in REQUIRED}, hyperparameters=hps, root=path.parent,
                      atari_head_root=atari_head_root(params.get("atari_head"), path))
+
+
+def check_retraining(section: Any, hps: dict[str, Any], path: str | Path = PARAMS_FILE) -> None:
+    """`retraining`: recipes whose runs are still training, one per env of `hyperparameters`, each different from it.
+
+    The committed checkpoints' recipe stays in `hyperparameters` (the `train` stages depend on it, so a new recipe
+    there would plan retraining of every committed run); an entry equal to it has landed and must go.
+    """
+    if section is None:
+        return
+    check_keys(section, f"{path}: retraining", hps, what="env", fix="")
+    for env_id, hp in section.items():
+        validate_hyperparameters(hp, env_id, where=f"{path}: retraining.{env_id}")
+        if hp == hps[env_id]:
+            raise ValueError(f"{path}: retraining.{env_id} equals hyperparameters.{env_id}: the recipe has landed; "
+                             f"delete retraining.{env_id}")
 
 
 def atari_head_root(section: Any, path: str | Path = PARAMS_FILE) -> Path | None:
