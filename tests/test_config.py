@@ -62,7 +62,7 @@ def test_params_hyperparameters_match_the_packaged_paper_table():
     (lambda p: p.update(retraining={"Hopper-v5": {}}), r"retraining: unknown env\(s\) \['Hopper-v5'\]"),
     (lambda p: p.update(retraining={"Swimmer-v5": p["hyperparameters"]["Swimmer-v5"]}),
      "retraining.Swimmer-v5 equals hyperparameters.Swimmer-v5: the recipe has landed"),
-    (lambda p: p.update(retraining={"Swimmer-v5": {"n_envs": 4}}), "retraining.Swimmer-v5: lacks"),
+    (lambda p: p.update(retraining={"Swimmer-v5": {"n_envs": 4}}), "retraining.Swimmer-v5 lacks"),
 ])
 def test_a_bad_retraining_entry_is_refused(params, edit, match):
     data = yaml.safe_load(params.read_text())

@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 from paper_lib.agents.envs import is_atari, make_env
+from paper_lib.common.checks import check_keys
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
 from paper_lib.methods.groups import MemberGroupVecEnv, check_groups_match, check_member_layout
 from paper_lib.methods.layers import validate_masksembles
@@ -173,14 +174,9 @@ def validate_hyperparameters(hp: Any, env_id: str, where: str | None = None) -> 
     """Check one env's hyperparameter entry (keys, types, ranges) before anything is built from it."""
     where = where or f"hyperparameters for {env_id}"
     hp = _check_mapping(hp, "the entry", where)
-    unknown = sorted(set(hp) - set(HP_REQUIRED) - set(HP_OPTIONAL))
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {sorted(HP_REQUIRED + HP_OPTIONAL)}")
-    missing = [key for key in HP_REQUIRED if key not in hp]
-    if not is_atari(env_id) and "hidden_sizes" not in hp:
-        missing.append("hidden_sizes")
-    if missing:
-        raise ValueError(f"{where}: lacks {missing}; see paper_lib/data/paper_hyperparameters.yaml for a full entry")
+    required = [*HP_REQUIRED, *([] if is_atari(env_id) else ["hidden_sizes"])]
+    check_keys(hp, where, sorted(HP_REQUIRED + HP_OPTIONAL), required,
+               fix="see paper_lib/data/paper_hyperparameters.yaml for a full entry")
     check_integer(hp["n_envs"], "n_envs", where, minimum=1)
     check_integer(hp["total_timesteps"], "total_timesteps", where, minimum=1)
     for key in ("normalize_obs", "normalize_reward", "linear_lr_decay"):
@@ -191,14 +187,10 @@ def validate_hyperparameters(hp: Any, env_id: str, where: str | None = None) -> 
             check_widths(hp[key], key, where)
     check_algo_settings(hp["algo"], where)
     members = _check_mapping(hp.get("members") or {}, "members", where)
-    unknown = sorted(set(members) - set(MEMBER_KEYS))
-    if unknown:
-        raise ValueError(f"{where}: unknown member setting(s) {unknown}; known: {list(MEMBER_KEYS)}")
+    check_keys(members, where, MEMBER_KEYS, what="member setting")
     check_member_values(members, where, prefix="members.")
     policy = _check_mapping(hp.get("policy") or {}, "policy", where)
-    unknown = sorted(set(policy) - set(POLICY_KEYS))
-    if unknown:
-        raise ValueError(f"{where}: unknown policy setting(s) {unknown}; known: {list(POLICY_KEYS)}")
+    check_keys(policy, where, POLICY_KEYS, what="policy setting")
     if "activation_fn" in policy and policy["activation_fn"] not in ACTIVATIONS:
         raise ValueError(f"{where}: activation_fn={policy['activation_fn']!r}; use one of {sorted(ACTIVATIONS)}")
     if "log_std_init" in policy:
@@ -224,10 +216,7 @@ def policy_settings(hp: dict[str, Any], env_id: str) -> dict[str, Any]:
     settings (log_std_init=-2, ortho_init=False, ReLU for HalfCheetah and Swimmer); member
     policies honour them exactly as `MlpPolicy` does.
     """
-    raw = dict(hp.get("policy") or {})
-    unknown = sorted(set(raw) - set(POLICY_KEYS))
-    if unknown:
-        raise ValueError(f"hyperparameters for {env_id}: unknown policy setting(s) {unknown}; known: {list(POLICY_KEYS)}")
+    raw = dict(check_keys(hp.get("policy") or {}, f"hyperparameters for {env_id}", POLICY_KEYS, what="policy setting"))
     if "activation_fn" in raw:
         if raw["activation_fn"] not in ACTIVATIONS:
             raise ValueError(f"hyperparameters for {env_id}: activation_fn={raw['activation_fn']!r}; "
@@ -238,10 +227,8 @@ def policy_settings(hp: dict[str, Any], env_id: str) -> dict[str, Any]:
 
 def member_settings(hp: dict[str, Any], env_id: str, **explicit: Any) -> dict[str, Any]:
     """k, dropout p and Masksembles scale: an explicit argument wins over the table's `members`."""
-    table = dict(hp.get("members") or {})
-    unknown = sorted(set(table) - set(MEMBER_KEYS))
-    if unknown:
-        raise ValueError(f"hyperparameters for {env_id}: unknown member setting(s) {unknown}; known: {list(MEMBER_KEYS)}")
+    table = dict(check_keys(hp.get("members") or {}, f"hyperparameters for {env_id}", MEMBER_KEYS,
+                            what="member setting"))
     resolved = {key: explicit[key] if explicit.get(key) is not None else table.get(key) for key in MEMBER_KEYS}
     missing = [key for key, value in resolved.items() if value is None]
     if missing:

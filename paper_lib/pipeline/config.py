@@ -13,7 +13,6 @@ import argparse
 import copy
 import os
 import stat
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ from typing import Any
 import yaml
 
 from paper_lib.agents.factory import check_algo_settings, check_integer, check_seed, validate_hyperparameters
+from paper_lib.common.checks import check_keys
 from paper_lib.common.io import write_text_atomic
 from paper_lib.methods.groups import check_member_layout
 from paper_lib.methods.networks import METHODS
@@ -200,25 +200,6 @@ def parse_params(text: str, path: str | Path = PARAMS_FILE) -> dict[str, Any]:
         raise ValueError(f"{path}: unknown top-level section(s) {unknown}; params.yaml has only "
                          f"{list(SECTIONS + OPTIONAL_SECTIONS)}")
     return params
-
-
-def check_keys(mapping: Any, where: str, known: Iterable[Any], required: Iterable[Any] = (), *, what: str = "key",
-               fix: str = "copy them from another profile in params.yaml") -> dict[Any, Any]:
-    """`mapping`, once its keys are all `known` and hold every `required` one; else one ValueError naming them.
-
-    Every section of params.yaml is checked with this, so a typo or a missing key reads the same wherever it is
-    made: `<where>: unknown <what>(s) [...]; known: [...]`, or `<where> lacks [...]; <fix>`.
-    """
-    if not isinstance(mapping, dict):
-        raise ValueError(f"{where} must be a mapping (key: value), got {mapping!r}")
-    known = list(known)
-    unknown = sorted(set(mapping) - set(known), key=str)
-    if unknown:
-        raise ValueError(f"{where}: unknown {what}(s) {unknown}; known: {known}")
-    missing = [key for key in required if key not in mapping]
-    if missing:
-        raise ValueError(f"{where} lacks {missing}; {fix}")
-    return mapping
 
 
 def _check_list(value: Any, name: str, where: str) -> list[Any]:
