@@ -8,8 +8,8 @@ import pytest
 
 from paper_lib.reporting.aggregates import (aggregate_table, improvement_table, interquartile_mean, normalized_rewards,
                                             performance_profile, probability_of_improvement, profile_taus,
-                                            profiles_by_env_family, score_distribution, score_matrices,
-                                            stratified_resample)
+                                            profiles_by_env_family, score_distribution, score_matrices)
+from paper_lib.scoring.statistics import stratified_resample
 
 
 def test_interquartile_mean_is_the_mean_of_the_middle_half_of_all_runs():

@@ -186,22 +186,6 @@ def test_shared_clusters_are_resampled_together():
     assert (reps == 1.0).any() and reps.min() >= 0.5
 
 
-def test_seed_cluster_ci_resamples_seeds_then_clusters():
-    from paper_lib.scoring.metrics import seed_cluster_ci, seed_cluster_replicates, t_interval
-
-    rng = np.random.default_rng(0)
-    reps = [rng.normal(mean, 0.01, 1000) for mean in (0.6, 0.7, 0.8)]
-    boot = seed_cluster_replicates(reps, np.random.default_rng(1), n_boot=2000)
-    # seeds are resampled: draws of (0.6, 0.6, 0.6) or (0.8, 0.8, 0.8) happen (1 in 27 each), so the replicates
-    # reach the seed means; without seed resampling every replicate would be 0.7 +- 0.01
-    assert np.quantile(boot, 0.02) < 0.64 and np.quantile(boot, 0.98) > 0.76
-    low, high = seed_cluster_ci(reps, np.random.default_rng(1), n_boot=2000)
-    assert (low, high) == pytest.approx(t_interval([0.6, 0.7, 0.8]), abs=2e-3)  # 3 seeds: never narrower than t
-    assert seed_cluster_ci(reps[:1], rng) == tuple(np.quantile(reps[0], [0.025, 0.975]))
-    with pytest.raises(ValueError, match="one per training seed"):
-        seed_cluster_ci([], rng)
-
-
 def test_metrics_over_scoring_seeds_report_their_spread():
     from paper_lib.scoring.metrics import measure_metrics
 

@@ -1,7 +1,8 @@
 """Intervals and differences of the reward and AUROC tables (notebooks 2 and 3).
 
-Synthetic episodes and replicates check the statistics; the committed `cpu` per-run files (read
-only) check the facts the tables' pairing rests on.
+Synthetic episodes and replicates check the tables built on the statistics (the statistics themselves:
+tests/test_statistics.py); the committed `cpu` per-run files (read only) check the facts the tables' pairing
+rests on.
 """
 
 from __future__ import annotations
@@ -15,8 +16,7 @@ from scipy.stats import norm
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from paper_lib.reporting import paper_tables as report
-from paper_lib.scoring.metrics import (difference_ci, mean_replicates, seed_cluster_ci, seed_cluster_difference,
-                                       seed_cluster_replicates, t_interval)
+from paper_lib.scoring.statistics import difference_ci, mean_replicates
 
 REPO = Path(__file__).resolve().parents[1]
 CPU = REPO / "results" / "cpu"
@@ -57,14 +57,6 @@ def test_reward_interval_contains_the_mean_and_is_seeded():
     alone = report.reward_intervals(episodes[episodes.method == "masksembles"], n_boot=500)
     pd.testing.assert_frame_equal(alone.reset_index(drop=True), intervals.iloc[[1]].reset_index(drop=True))
     assert not intervals.equals(report.reward_intervals(episodes, n_boot=500, seed=1))
-
-
-def test_one_seed_resamples_its_episodes_only():
-    values = np.arange(10.0)
-    low, high = seed_cluster_ci([mean_replicates(values, np.random.default_rng(3), 400)], np.random.default_rng(4))
-    reps = mean_replicates(values, np.random.default_rng(3), 400)
-    assert (low, high) == pytest.approx(np.quantile(reps, [0.025, 0.975]))
-    assert mean_replicates(np.full(7, 2.5), np.random.default_rng(0), 50) == pytest.approx(np.full(50, 2.5))
 
 
 def test_more_seeds_shrink_the_interval():
@@ -124,40 +116,6 @@ def test_reward_difference_table_puts_sampled_first_and_states_the_counts():
     empty = report.reward_vs_baseline(parts[2], ["baseline", "ensemble"], n_boot=10)  # no baseline: no rows, same columns
     assert empty.empty and list(empty.columns) == report.REWARD_DIFFERENCE_COLUMNS
     assert "sampled difference" in report.reward_difference_table(empty).columns
-
-
-# ------------------------------------------------------------------------------------------------- differences
-def test_difference_ci_pairings():
-    rng = np.random.default_rng(0)
-    reps = [rng.normal(0.7 + 0.05 * s, 0.05, 400) for s in range(3)]
-    assert difference_ci(reps, reps, np.random.default_rng(1), "paired") == (0.0, 0.0)
-    for pairing in ("seeds", "unpaired"):
-        low, high = difference_ci(reps, reps, np.random.default_rng(1), pairing)
-        assert low < 0 < high, pairing
-    one = reps[:1]
-    assert difference_ci(one, one, np.random.default_rng(1), "paired") == (0.0, 0.0)
-    assert np.ptp(seed_cluster_difference(one, one, np.random.default_rng(1), "unpaired")) > 0  # matched at random
-    with pytest.raises(ValueError, match="pairing must be one of"):
-        difference_ci(reps, reps, rng, "both")
-    with pytest.raises(ValueError, match="same seeds"):
-        difference_ci(reps, reps[:2], rng, "paired")
-
-
-def test_seed_cluster_ci_draws_seeds_then_replicates_and_floors_at_t():
-    """The bootstrap part draws exactly as before (seeds, then one replicate per drawn seed: single-run scores depend
-    on it); the interval reported over 3 seeds is that percentile interval widened to Student's t."""
-    rng = np.random.default_rng(0)
-    reps = [rng.normal(m, 0.02, 300) for m in (0.6, 0.7, 0.8)]
-    draw = np.random.default_rng(9)
-    seeds = draw.integers(0, 3, size=(500, 3))
-    picks = draw.random(size=(500, 3))
-    stacked = np.stack(reps)
-    expected = np.nanquantile(stacked[seeds, (picks * 300).astype(int)].mean(axis=1), [0.025, 0.975])
-    assert np.quantile(seed_cluster_replicates(reps, np.random.default_rng(9), 500), [0.025, 0.975]) == pytest.approx(expected)
-    floor = t_interval([r.mean() for r in reps])
-    assert seed_cluster_ci(reps, np.random.default_rng(9), n_boot=500) == (min(expected[0], floor[0]),
-                                                                         max(expected[1], floor[1]))
-    assert seed_cluster_ci(reps[:1], np.random.default_rng(9), n_boot=500) == tuple(np.quantile(reps[0], [0.025, 0.975]))
 
 
 # ------------------------------------------------------------------------------------------------- AUROC

@@ -14,6 +14,7 @@ from paper_lib import make_agent, member_outputs, paper_hyperparameters
 from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.experiments.value_level import COLUMNS, value_level_reading, value_level_row, value_level_table
 from paper_lib.ood.datasets import StateDataset
+from paper_lib.scoring.ood_scores import score_run
 
 ENV = "HalfCheetah-v5"
 
@@ -71,6 +72,23 @@ def test_states_that_differ_only_in_value_are_found_by_minus_v_and_not_by_value_
     assert abs(row["id_rank_corr"]) > 0.2 and abs(raw - 0.5) > 0.15  # value std moves with V: raw std "detects" them
     assert abs(beyond - 0.5) < 0.1  # ... and says nothing once the ID trend in V is removed
     assert value_level_row(ensemble, low_value_ood, seed=0) == row  # same seed, same numbers
+
+
+def test_an_mc_run_gets_the_score_stages_value_std_auroc_from_the_same_draws(tmp_path):
+    """Table 2 and notebook 13 report one value-std AUROC per run: the same split, scoring seeds and part seeds."""
+    run = _run("mc_dropout", tmp_path)
+    run.model.learn(total_timesteps=64)  # a (tiny) trained agent, not its initialization
+    rng = np.random.default_rng(3)
+    data = _dataset(rng.normal(size=(600, 17)).astype(np.float32),
+                    (1.5 * rng.normal(size=(300, 17)) + 0.5).astype(np.float32))
+    row = value_level_row(run, data, seed=7, n_scoring_seeds=3)
+    metrics = score_run(run, data, 7, n_bootstrap=10, n_scoring_seeds=3).metrics.set_index(["ood_set", "measure"])
+    scored = metrics.loc[("perturbed", "value_std")]
+    assert row["n_scoring_seeds"] == scored.n_scoring_seeds == 3 and scored.auroc_scoring_std > 0  # MC noise exists
+    assert (row["n_id"], row["n_ood"]) == (scored.n_id, scored.n_ood)
+    assert row["value_std_auroc"] == pytest.approx(scored.auroc, abs=1e-12, rel=0)
+    one = value_level_row(run, data, seed=7, n_scoring_seeds=1)  # the first scoring seed alone is another number
+    assert one["n_scoring_seeds"] == 1 and one["value_std_auroc"] != row["value_std_auroc"]
 
 
 def test_a_baseline_has_minus_v_but_no_value_std(tmp_path, low_value_ood):

@@ -16,11 +16,11 @@ import mujoco
 import numpy as np
 import pandas as pd
 import torch as th
-from sklearn.metrics import roc_auc_score
 
 from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.agents.envs import is_atari
 from paper_lib.measures.estimates import uncertainty
+from paper_lib.scoring.metrics import auroc
 
 FLOOR = "floor"
 MEASURES = ("value_std", "policy_std")
@@ -73,9 +73,10 @@ def spawn_rollouts(run: Checkpoint, episodes: int = 5, steps: int = 100, seed: i
     return rows.assign(airborne=rows.floor_contacts == 0)
 
 
-def _auroc(scores: pd.Series, positive: pd.Series) -> float:
-    """AUROC of ``scores`` for the ``positive`` steps against the others; NaN where one side is empty."""
-    return float(roc_auc_score(positive, scores)) if 0 < positive.sum() < len(positive) else np.nan
+def _airborne_auroc(scores: pd.Series, airborne: pd.Series) -> float:
+    """AUROC (`scoring.metrics.auroc`) of ``scores`` for the steps in the air (the positive class) against those on
+    the floor; NaN where one side is empty."""
+    return auroc(scores[~airborne], scores[airborne]) if 0 < airborne.sum() < len(airborne) else np.nan
 
 
 def spawn_summary(rollouts: pd.DataFrame, spawn_steps: int = 10) -> pd.DataFrame:
@@ -92,7 +93,7 @@ def spawn_summary(rollouts: pd.DataFrame, spawn_steps: int = 10) -> pd.DataFrame
                "airborne_share_spawn": run.airborne[spawn].mean(), "airborne_share_later": run.airborne[~spawn].mean()}
         for measure in MEASURES:
             row[f"{measure}_spawn_ratio"] = run[measure][spawn].mean() / run[measure][~spawn].mean()
-            row[f"{measure}_airborne_auroc"] = _auroc(run[measure], run.airborne)
+            row[f"{measure}_airborne_auroc"] = _airborne_auroc(run[measure], run.airborne)
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -3,7 +3,8 @@ interquartile mean (IQM) and mean over all runs of all envs, with stratified-boo
 probability that one method improves on another, and performance profiles (the fraction of runs above each score).
 
 A method's scores form a (runs, envs) matrix: one column per env, one row per seed. The stratified bootstrap
-resamples the runs of each env apart (with replacement), so every env keeps its weight. rliable itself does not
+resamples the runs of each env apart (with replacement), so every env keeps its weight (the draws and the
+percentile intervals live in `scoring.statistics`; here the aggregates and their tables). rliable itself does not
 run here: its newest release (1.2.0) needs arch < 8, whose 7.x fails to import under the lock's pandas 3 and whose
 8.0 changed the bootstrap API rliable calls; these are its definitions, written out and tested against hand-made
 cases (tests/test_aggregates.py).
@@ -15,7 +16,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import trim_mean
 
-from paper_lib.reporting.paper_tables import cell_rng
+from paper_lib.scoring.statistics import cell_rng, percentile_band, stratified_interval, stratified_replicates
 
 #: The paper's pairwise claims about its methods: (better, worse) as the paper reads them.
 PAPER_PAIRS = (("masksembles", "mc_dropout"), ("masksembles", "mc_dropconnect"), ("masksembles", "ensemble"),
@@ -52,31 +53,20 @@ def interquartile_mean(matrix: np.ndarray) -> float:
     return float(trim_mean(np.asarray(matrix, dtype=float).ravel(), proportiontocut=0.25))
 
 
-def stratified_resample(matrix: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """`matrix` with the runs of each env (column) drawn again with replacement, each env apart."""
-    rows = rng.integers(0, matrix.shape[0], size=matrix.shape)
-    return np.take_along_axis(matrix, rows, axis=0)
-
-
-def _interval(values: np.ndarray, level: float, matrix: np.ndarray) -> tuple[float, float]:
-    """The percentile interval of the bootstrap `values`; none (NaN) from one run per env, which resampling only
-    repeats: such an aggregate has no interval, and the tables say so."""
-    if matrix.shape[0] < 2:
-        return float("nan"), float("nan")
-    low, high = np.percentile(values, [50 * (1 - level), 50 * (1 + level)])
-    return float(low), float(high)
+def _iqm_and_mean(matrix: np.ndarray) -> tuple[float, float]:
+    """Both aggregates of one resample, so that their intervals come from the same draws."""
+    return interquartile_mean(matrix), matrix.mean()
 
 
 def aggregate_table(matrices: dict[str, np.ndarray], n_boot: int, seed: int = 0, level: float = 0.95) -> pd.DataFrame:
     """IQM and mean of each method's scores, with percentile intervals of a stratified bootstrap over runs."""
     rows = []
     for method, matrix in matrices.items():
-        rng = cell_rng(seed, "aggregate", method)
-        boot = [stratified_resample(matrix, rng) for _ in range(n_boot)]
-        iqms, means = np.array([interquartile_mean(b) for b in boot]), np.array([b.mean() for b in boot])
+        boot = stratified_replicates(_iqm_and_mean, [matrix], cell_rng(seed, "aggregate", method), n_boot)
+        runs = matrix.shape[0]
         rows.append({"method": method, "iqm": interquartile_mean(matrix), **dict(zip(("iqm_low", "iqm_high"),
-                     _interval(iqms, level, matrix))), "mean": float(matrix.mean()),
-                     **dict(zip(("mean_low", "mean_high"), _interval(means, level, matrix))),
+                     stratified_interval(boot[:, 0], level, runs))), "mean": float(matrix.mean()),
+                     **dict(zip(("mean_low", "mean_high"), stratified_interval(boot[:, 1], level, runs))),
                      "n_envs": matrix.shape[1], "seeds_per_env": matrix.shape[0]})
     return pd.DataFrame(rows, columns=AGGREGATE_COLUMNS)
 
@@ -100,12 +90,11 @@ def improvement_table(matrices: dict[str, np.ndarray], pairs: tuple[tuple[str, s
         if method not in matrices or over not in matrices:
             continue
         x, y = matrices[method], matrices[over]
-        rng = cell_rng(seed, "improvement", method, over)
-        boot = np.array([probability_of_improvement(stratified_resample(x, rng), stratified_resample(y, rng))
-                         for _ in range(n_boot)])
+        boot = stratified_replicates(probability_of_improvement, [x, y], cell_rng(seed, "improvement", method, over),
+                                     n_boot)
         rows.append({"method": method, "over": over, "probability": probability_of_improvement(x, y),
-                     **dict(zip(("ci_low", "ci_high"), _interval(boot, level, x))), "n_envs": x.shape[1],
-                     "seeds_per_env": x.shape[0]})
+                     **dict(zip(("ci_low", "ci_high"), stratified_interval(boot, level, x.shape[0]))),
+                     "n_envs": x.shape[1], "seeds_per_env": x.shape[0]})
     return pd.DataFrame(rows, columns=IMPROVEMENT_COLUMNS)
 
 
@@ -174,12 +163,12 @@ def performance_profile(matrices: dict[str, np.ndarray], taus: np.ndarray, n_boo
     taus = np.asarray(taus, dtype=float)
     parts = []
     for method, matrix in matrices.items():
-        rng = cell_rng(seed, "profile", method)
-        if matrix.shape[0] < 2:
+        if matrix.shape[0] < 2:  # as `stratified_interval`: one run per env has no interval
             low = high = np.full(taus.shape, np.nan)
         else:
-            boot = np.array([score_distribution(stratified_resample(matrix, rng), taus) for _ in range(n_boot)])
-            low, high = np.percentile(boot, [50 * (1 - level), 50 * (1 + level)], axis=0)
+            boot = stratified_replicates(lambda m: score_distribution(m, taus), [matrix],
+                                         cell_rng(seed, "profile", method), n_boot)
+            low, high = percentile_band(boot, level, axis=0)
         parts.append(pd.DataFrame({"method": method, "tau": taus, "fraction": score_distribution(matrix, taus),
                                    "fraction_low": low, "fraction_high": high, "n_envs": matrix.shape[1],
                                    "seeds_per_env": matrix.shape[0]}))

@@ -2,13 +2,12 @@
 
 Also the tables' intervals: each reward cell's and each AUROC cell's over seeds, and the
 differences to the baseline (rewards) and to the member-free detectors (AUROC), paired exactly
-where both sides share their seeds and resamples (the bootstraps themselves are in `metrics`).
+where both sides share their seeds and resamples. Here only which numbers pair with which, and the
+rows: the bootstraps and intervals themselves live in `scoring.statistics`.
 """
 
 from __future__ import annotations
 
-import zlib
-from collections.abc import Hashable
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,7 @@ import pandas as pd
 
 from paper_lib.measures.definitions import ALL_MEMBER_MEASURES
 from paper_lib.reporting.tables import PLUS_MINUS
-from paper_lib.scoring.metrics import difference_ci, mean_replicates, seed_cluster_ci
+from paper_lib.scoring.statistics import cell_rng, difference_ci, seed_mean_ci, seed_mean_difference_ci, seed_means
 
 #: Names the paper's CSVs use for our Gymnasium ids.
 PAPER_ENV_NAMES = {"HalfCheetah-v5": "HalfCheetah", "Ant-v5": "Ant", "Walker2d-v5": "Walker2d", "Swimmer-v5": "Swimmer",
@@ -148,15 +147,6 @@ def _conditions(rows: pd.DataFrame) -> str:
 # ----------------------------------------------------------------------------- intervals and differences
 
 
-def cell_rng(seed: int, *key: Hashable) -> np.random.Generator:
-    """A generator for one table cell, from the table's seed and the cell's key.
-
-    Each cell draws its own resamples, so its interval is the same whatever other runs exist
-    and in whatever order the cells come: regenerating gives identical numbers.
-    """
-    return np.random.default_rng([int(seed), zlib.crc32("|".join(map(str, key)).encode())])
-
-
 #: The columns that identify a reward cell (rewards_long's rows).
 REWARD_KEYS = ["env", "method", "inference", "deterministic"]
 
@@ -168,18 +158,16 @@ def _seed_rewards(cell: pd.DataFrame) -> list[np.ndarray]:
 def reward_intervals(episodes: pd.DataFrame, n_boot: int, seed: int = 0, level: float = 0.95) -> pd.DataFrame:
     """Per reward cell, an interval of its mean (the mean over seeds of each seed's episode mean).
 
-    Two-level cluster bootstrap: resample the seeds, then the episodes within each drawn seed, never
-    narrower than Student's t over the seed means (`metrics.seed_cluster_ci`); with one seed, the
-    episodes of that one run only. Seeded per cell (`cell_rng`).
+    Two-level bootstrap: resample the seeds, then the episodes within each drawn seed, never
+    narrower than Student's t over the seed means (`statistics.seed_mean_ci`); with one seed, the
+    episodes of that one run only. Seeded per cell (`statistics.cell_rng`).
     """
     rows = []
     for key, cell in episodes.groupby(REWARD_KEYS, sort=False):
-        rng = cell_rng(seed, *key)
         rewards = _seed_rewards(cell)
-        per_seed = [mean_replicates(r, rng, n_boot) for r in rewards]
-        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level, estimates=[r.mean() for r in rewards])
+        low, high = seed_mean_ci(rewards, cell_rng(seed, *key), n_boot, level)
         rows.append({**dict(zip(REWARD_KEYS, key)), "ci_low": low, "ci_high": high,
-                     "ci_over": "seeds, then episodes" if len(per_seed) > 1 else "episodes"})
+                     "ci_over": "seeds, then episodes" if len(rewards) > 1 else "episodes"})
     return pd.DataFrame(rows)
 
 
@@ -197,14 +185,15 @@ def episode_slots(cell: pd.DataFrame) -> pd.MultiIndex:
     return pd.MultiIndex.from_arrays([cell["seed"], stream, position], names=["seed", "stream", "position"])
 
 
-def _paired_rewards(cell: pd.DataFrame, base: pd.DataFrame) -> list[np.ndarray] | None:
-    """Per seed, a (2, episodes) array of the cell's and the baseline's rewards slot by slot; None if the slots differ."""
+def _paired_rewards(cell: pd.DataFrame, base: pd.DataFrame) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
+    """Per seed, the cell's and the baseline's rewards slot by slot (two lists); None if the slots differ."""
     a = cell.set_index(episode_slots(cell))["reward"].sort_index()
     b = base.set_index(episode_slots(base))["reward"].sort_index()
     if not a.index.equals(b.index):
         return None
     seeds = a.index.get_level_values("seed")
-    return [np.stack([a[seeds == s].to_numpy(float), b[seeds == s].to_numpy(float)]) for s in pd.unique(seeds)]
+    order = pd.unique(seeds)
+    return [a[seeds == s].to_numpy(float) for s in order], [b[seeds == s].to_numpy(float) for s in order]
 
 
 def reward_difference(cell: pd.DataFrame, base: pd.DataFrame, rng: np.random.Generator, n_boot: int,
@@ -214,16 +203,14 @@ def reward_difference(cell: pd.DataFrame, base: pd.DataFrame, rng: np.random.Gen
     Paired (the same seed and episode draws for both) where both played the same episode slots
     (`episode_slots`); otherwise each side is resampled on its own ("unpaired").
     """
-    means_a, means_b = (np.array([r.mean() for r in _seed_rewards(side)]) for side in (cell, base))
+    rewards_a, rewards_b = _seed_rewards(cell), _seed_rewards(base)
+    means_a, means_b = seed_means(rewards_a), seed_means(rewards_b)
     difference = means_a.mean() - means_b.mean()
     pairs = _paired_rewards(cell, base)
     if pairs is not None:
-        reps = [mean_replicates(p, rng, n_boot) for p in pairs]
-        low, high = difference_ci([r[0] for r in reps], [r[1] for r in reps], rng, "paired", n_boot, level,
-                                  estimates_a=[p[0].mean() for p in pairs], estimates_b=[p[1].mean() for p in pairs])
+        low, high = seed_mean_difference_ci(*pairs, rng, "paired", n_boot, level)
     else:
-        a, b = ([mean_replicates(r, rng, n_boot) for r in _seed_rewards(side)] for side in (cell, base))
-        low, high = difference_ci(a, b, rng, "unpaired", n_boot, level, estimates_a=means_a, estimates_b=means_b)
+        low, high = seed_mean_difference_ci(rewards_a, rewards_b, rng, "unpaired", n_boot, level)
     return {"difference": float(difference), "ci_low": low, "ci_high": high, "baseline": float(means_b.mean()),
             "pairing": "paired" if pairs is not None else "unpaired", "n_seeds": int(cell["seed"].nunique()),
             "n_episodes": len(cell), "baseline_seeds": int(base["seed"].nunique()), "baseline_episodes": len(base)}
@@ -338,7 +325,7 @@ def repeated_games_note(repeated: pd.DataFrame, episodes: pd.DataFrame) -> str:
 MEASURE_FAMILIES = {"value_std": "value", "policy_std": "policy", "policy_js": "policy", "max_prob": "policy",
                     "entropy": "policy"}
 #: Whether replicate i of two measures of one run comes from the same cluster resample. It does:
-#: `ood_eval.score_run` gives every measure of an OOD set the same resampling seed (tested in
+#: `scoring.ood_scores.score_run` gives every measure of an OOD set the same resampling seed (tested in
 #: tests/test_table_statistics.py on the committed replicates), so differences between measures of
 #: a run are paired.
 REPLICATES_SHARE_RESAMPLES = True
@@ -348,7 +335,7 @@ Replicates = dict[tuple[str, str, int, str, str], np.ndarray]  # (env, method, s
 
 def pooled_auroc(metrics: pd.DataFrame, replicates: Replicates, n_boot: int, seed: int = 0,
                  level: float = 0.95) -> pd.DataFrame:
-    """One row per (env, method, ood_set, measure) over its training seeds (`ood_eval.summarize_seeds`).
+    """One row per (env, method, ood_set, measure) over its training seeds (`scoring.ood_scores.summarize_seeds`).
 
     AUROC mean and spread over seeds (auroc_seed_std), and a 95% CI that resamples seeds, then
     each seed's cluster-bootstrap replicates; seeded per cell (`cell_rng`).
@@ -485,7 +472,7 @@ def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: 
 
     Two agents, each on the states it collected: seed s of one is compared with seed s of the other
     (seeds drawn once for both), cluster resamples independent ("seeds" pairing); the interval is at
-    least Student's t over the per-seed differences (`metrics.difference_ci`).
+    least Student's t over the per-seed differences (`statistics.difference_ci`).
     """
     rows = []
     cells = metrics[metrics["ood_set"] == ood_set]

@@ -7,6 +7,7 @@ and a crash never leaves a stale or half-written table.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,13 @@ PLUS_MINUS = "\u00b1"  # "±"
 ONE_SEED_MARK = "\u00b9"  # "¹"
 ONE_SEED_NOTE = (f"{ONE_SEED_MARK} one training seed: the interval covers that one run's episodes or states, not the "
                  "spread between training runs (a hint, not a finding)")
+#: The Monte Carlo standard error at which an estimate's last printed decimal is sampling noise (issue 36): an
+#: interval cell whose MC standard error is at least MC_SE_LIMIT shows one decimal fewer (0.005 with "%.3f").
+MC_SE_LIMIT = 0.005
+MC_DIGITS_NOTE = ("Cells printed with one decimal fewer are MC Dropout/DropConnect cells whose Monte Carlo standard "
+                  f"error is {MC_SE_LIMIT} or more (the AUROC's std over the scoring seeds, ddof=1, / sqrt(scoring "
+                  "seeds x training seeds)): their next digit would be the sampling noise of the uncertainty estimate, "
+                  "not a property of the agent")
 
 
 def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
@@ -103,39 +111,95 @@ def to_latex(df: pd.DataFrame, caption: str, right: list[bool], label: str | Non
     )
 
 
+def mc_standard_error(df: pd.DataFrame, estimate: str, seeds: str | None = "n_seeds") -> pd.Series | None:
+    """The Monte Carlo standard error of each row's ``estimate``, or None where the frame does not carry its MC spread.
+
+    A stochastic method's (MC Dropout / DropConnect) run AUROC is the mean over ``n_scoring_seeds`` scoring seeds,
+    and a cell the mean of ``seeds`` runs; the frame carries ``<estimate>_scoring_std`` (`measure_metrics`: the
+    population std, ddof=0, over a run's scoring seeds; `summarize_seeds`: its mean over the cell's runs). With
+    s that std and m, n the counts, the sample std over scoring seeds is s*sqrt(m/(m-1)), so a run's MC standard
+    error is s/sqrt(m-1) and the cell's, its runs' errors being independent, s/sqrt((m-1)*n). (The mean of the
+    runs' s stands in for their root mean square, a little lower where runs' spreads differ.) One scoring seed
+    with no spread (a deterministic method) has error 0; one scoring seed of a stochastic method has an unknown
+    error (NaN), and its cell keeps its digits.
+    """
+    spread = f"{estimate}_scoring_std"
+    if spread not in df.columns or "n_scoring_seeds" not in df.columns:
+        return None
+    std = pd.to_numeric(df[spread], errors="coerce").astype(float)
+    m = pd.to_numeric(df["n_scoring_seeds"], errors="coerce").astype(float)
+    n = pd.to_numeric(df[seeds], errors="coerce").astype(float) if seeds and seeds in df.columns else 1.0
+    se = std / np.sqrt((m - 1).where(m > 1) * n)
+    return se.where(m > 1, np.where(std == 0, 0.0, np.nan))
+
+
+def _decimals(float_format: str) -> int:
+    match = re.fullmatch(r"%\.(\d+)f", float_format)
+    if match is None:
+        raise ValueError(f"an interval cell with a Monte Carlo standard error needs a fixed-point format such as "
+                         f"'%.3f' (it drops decimals the MC noise does not support), got {float_format!r}.")
+    return int(match.group(1))
+
+
+def mc_decimals(se: pd.Series, float_format: str = "%.3f", limit: float = MC_SE_LIMIT) -> pd.Series:
+    """Decimals each cell supports: ``float_format``'s, one fewer for each factor of 10 its MC standard error reaches
+    ``limit`` (scaled to that decimal): SE 0.006 with "%.3f" -> 2, 0.004 -> 3, 0.06 -> 1; NaN keeps them all."""
+    digits = _decimals(float_format)
+    se = pd.to_numeric(pd.Series(se), errors="coerce").astype(float)
+    out = []
+    for e in se:
+        d = digits
+        while d > 0 and not np.isnan(e) and e >= limit * 10.0 ** (digits - d):
+            d -= 1
+        out.append(d)
+    return pd.Series(out, index=se.index, dtype=int)
+
+
 def interval_cells(df: pd.DataFrame, estimate: str, low: str, high: str, seeds: str | None = "n_seeds",
-                   float_format: str = "%.3f") -> pd.Series:
+                   float_format: str = "%.3f", mc_se: str | None = None) -> pd.Series:
     """One shown cell per row: 'estimate [low, high]', marked ONE_SEED_MARK where column ``seeds`` is 1.
 
     A reader who looks at one cell must see there that its interval rests on one training seed,
     not only in a caption or a column beside it; an interval that does not exist (NaN) is left out.
+    ``mc_se`` names a column with the estimate's Monte Carlo standard error (`mc_standard_error`):
+    a cell where it reaches MC_SE_LIMIT is printed with one decimal fewer (`mc_decimals`), so it
+    shows no digit the scoring seeds' sampling noise does not support.
     """
-    missing = [c for c in (estimate, low, high, seeds) if c is not None and c not in df.columns]
+    missing = [c for c in (estimate, low, high, seeds, mc_se) if c is not None and c not in df.columns]
     if missing:  # an empty table (no rows yet) is fine: it shows its header
         raise ValueError(f"interval_cells: missing column(s) {missing}; the frame has {list(df.columns)}.")
+    decimals = (mc_decimals(df[mc_se], float_format) if mc_se is not None else pd.Series(index=df.index, dtype=int))
 
-    def number(x: float) -> str:
-        return "NaN" if pd.isna(x) else float_format % x
+    def number(x: float, d: int | None) -> str:
+        return "NaN" if pd.isna(x) else (float_format % x if d is None else f"{x:.{d}f}")
 
-    cells = [number(e) if pd.isna(lo) or pd.isna(hi) else f"{number(e)} [{number(lo)}, {number(hi)}]"
-             for e, lo, hi in zip(df[estimate], df[low], df[high])]
+    cells = []
+    for e, lo, hi, d in zip(df[estimate], df[low], df[high], decimals.reindex(df.index).tolist()):
+        d = None if pd.isna(d) else int(d)
+        interval = "" if pd.isna(lo) or pd.isna(hi) else f" [{number(lo, d)}, {number(hi, d)}]"
+        cells.append(number(e, d) + interval)
     one_seed = (df[seeds] == 1).to_numpy() if seeds else np.zeros(len(df), dtype=bool)
     return pd.Series([c + ONE_SEED_MARK if one else c for c, one in zip(cells, one_seed)], index=df.index,
                      dtype=object)
 
 
 def _with_intervals(flat: pd.DataFrame, intervals: dict[str, tuple[str, str]], seeds: str | None,
-                    float_format: str) -> tuple[pd.DataFrame, bool]:
+                    float_format: str) -> tuple[pd.DataFrame, bool, bool]:
     """``flat`` with each estimate column shown as its interval cell ('<estimate> [95% CI]') and its bounds dropped;
-    and whether any cell carries the one-seed mark."""
+    whether any cell carries the one-seed mark; and whether any cell shows fewer decimals for its MC noise."""
     shown = flat.copy()
-    marked = False
+    marked = shortened = False
     for estimate, (low, high) in intervals.items():
-        cells = interval_cells(flat, estimate, low, high, seeds, float_format)
+        se = mc_standard_error(flat, estimate, seeds)
+        if se is None:
+            cells = interval_cells(flat, estimate, low, high, seeds, float_format)
+        else:
+            cells = interval_cells(flat.assign(_mc_se=se), estimate, low, high, seeds, float_format, mc_se="_mc_se")
+            shortened |= bool((mc_decimals(se, float_format) < _decimals(float_format)).any())
         marked |= bool(cells.str.endswith(ONE_SEED_MARK).any())
         shown[estimate] = cells
         shown = shown.drop(columns=[low, high]).rename(columns={estimate: f"{estimate} [95% CI]"})
-    return shown, marked
+    return shown, marked, shortened
 
 
 def save_table(
@@ -155,7 +219,10 @@ def save_table(
     index is written as leading column(s). ``intervals`` ({estimate: (low, high)}) shows
     each estimate with its interval in one Markdown/LaTeX cell, marked where column
     ``seeds`` is 1 (`interval_cells`), and then adds ONE_SEED_NOTE to the caption; the
-    CSV keeps the three columns apart.
+    CSV keeps the three columns apart. An estimate whose frame carries its Monte Carlo spread
+    (``<estimate>_scoring_std`` and ``n_scoring_seeds``, as `summarize_seeds` gives for auroc) is shown
+    to the decimals that noise supports (`mc_standard_error`, `mc_decimals`), and where a cell drops
+    one, MC_DIGITS_NOTE joins the caption.
     """
     if not isinstance(df, pd.DataFrame) or df.shape[1] == 0:
         raise ValueError(f"save_table: expected a DataFrame with at least one column, got {type(df).__name__}.")
@@ -169,9 +236,12 @@ def save_table(
         ) from None
     flat = df.copy() if _has_default_index(df) else df.reset_index()
     flat.columns = [str(c) for c in flat.columns]
-    display, marked = _with_intervals(flat, intervals, seeds, float_format) if intervals else (flat, False)
+    display, marked, shortened = (_with_intervals(flat, intervals, seeds, float_format) if intervals
+                                  else (flat, False, False))
     if marked:
         caption = f"{caption.strip()} {ONE_SEED_NOTE}."
+    if shortened:
+        caption = f"{caption.strip()} {MC_DIGITS_NOTE}."
     shown = _format_cells(display, float_format)
     right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) if c in flat else True
              for c in display.columns]

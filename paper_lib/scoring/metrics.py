@@ -7,29 +7,23 @@ flagged as OOD when the threshold is set so that 95% of OOD states are flagged
 (OpenOOD's definition). Libraries that take ID as positive report a different number
 under the same name.
 
-Confidence intervals: a run's states come in clusters (the states of one episode, or of
-one OOD configuration, are far from independent), so `cluster_bootstrap_auroc` resamples
-whole clusters; resampling single states (`bootstrap_auroc_ci`) gives intervals that are
-too narrow for such data. `seed_cluster_ci` combines runs of several training seeds:
-resample seeds, then clusters within each, and never reports less than Student's t interval over
-the seed estimates (`t_interval`): with 3 seeds, a percentile bootstrap spans about their min-max
-and covers far less than 95% (tests/test_table_statistics.py simulates it). The same two levels give the reward tables'
-intervals (`mean_replicates` of each seed's episodes) and the intervals of differences
-between methods or measures (`difference_ci`, paired where both sides share their resamples).
+The AUROC's bootstrap replicates are computed here (the AUROC of each resample: from ranks, or of
+the weighted sample a cluster resample makes); what is drawn (whole clusters, or single states), the
+intervals, and the combination of several training seeds live in `statistics`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy.stats import rankdata
-from scipy.stats import t as student_t
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
-ArrayLike = np.ndarray | list[float] | pd.Series
+from paper_lib.scoring.statistics import (ArrayLike, check_bootstrap_args, cluster_labels, cluster_resamples,
+                                          percentile_interval, state_resamples)
 
 
 def _as_scores(scores: ArrayLike, name: str) -> np.ndarray:
@@ -53,6 +47,15 @@ def _labels_and_scores(id_scores: ArrayLike, ood_scores: ArrayLike) -> tuple[np.
     return y, np.concatenate([id_s, ood_s])
 
 
+def auroc(id_scores: ArrayLike, ood_scores: ArrayLike) -> float:
+    """ROC-AUC, OOD = positive: how often an OOD state scores above an ID state (ties count 1/2)."""
+    return _auroc(*_labels_and_scores(id_scores, ood_scores))
+
+
+def _auroc(y: np.ndarray, s: np.ndarray) -> float:
+    return float(roc_auc_score(y, s))
+
+
 def detection_metrics(id_scores: ArrayLike, ood_scores: ArrayLike) -> dict[str, float | int]:
     """Threshold-free and thresholded OOD detection metrics, OOD = positive class.
 
@@ -63,7 +66,7 @@ def detection_metrics(id_scores: ArrayLike, ood_scores: ArrayLike) -> dict[str, 
     y, s = _labels_and_scores(id_scores, ood_scores)
     fpr, tpr, _ = roc_curve(y, s, drop_intermediate=False)
     return {
-        "auroc": float(roc_auc_score(y, s)),
+        "auroc": _auroc(y, s),
         "aupr_out": float(average_precision_score(y, s)),
         "aupr_in": float(average_precision_score(1 - y, -s)),
         "fpr_at_95_tpr": float(fpr[tpr >= 0.95].min()),
@@ -99,26 +102,18 @@ def bootstrap_auroc_ci(
     n_boot: int = 1000,
     level: float = 0.95,
 ) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of the AUROC (OOD = positive).
+    """Percentile bootstrap confidence interval of the AUROC (OOD = positive), single states resampled.
 
-    ID and OOD scores are resampled separately (with replacement, each set keeping
-    its size) because they are two independently collected samples; pooling them
-    would let the class balance drift between replicates.
+    ID and OOD scores are resampled apart (`statistics.state_resamples`). For clustered states
+    (episodes, configurations) this is too narrow: use `cluster_bootstrap_auroc`.
     """
     id_s = _as_scores(id_scores, "id_scores")
     ood_s = _as_scores(ood_scores, "ood_scores")
-    _check_bootstrap_args(rng, n_boot, level)
-    n = id_s.size + ood_s.size
-    chunk = max(1, 4_000_000 // n)  # bound memory to a few 10 MB per batch of replicates
-    aucs = []
-    for start in range(0, int(n_boot), chunk):
-        b = min(chunk, int(n_boot) - start)
-        id_b = id_s[rng.integers(0, id_s.size, size=(b, id_s.size))]
-        ood_b = ood_s[rng.integers(0, ood_s.size, size=(b, ood_s.size))]
-        aucs.append(_auroc_from_ranks(id_b, ood_b))
-    alpha = (1.0 - level) / 2.0
-    low, high = np.quantile(np.concatenate(aucs), [alpha, 1.0 - alpha])
-    return float(low), float(high)
+    check_bootstrap_args(rng, n_boot, level)
+    chunk = max(1, 4_000_000 // (id_s.size + ood_s.size))  # bound memory to a few 10 MB per batch of replicates
+    aucs = [_auroc_from_ranks(id_s[id_idx], ood_s[ood_idx])
+            for id_idx, ood_idx in state_resamples(id_s.size, ood_s.size, rng, n_boot, chunk)]
+    return percentile_interval(np.concatenate(aucs), level)
 
 
 def _weighted_aurocs(id_s: np.ndarray, ood_s: np.ndarray, w_id: np.ndarray, w_ood: np.ndarray) -> np.ndarray:
@@ -152,15 +147,6 @@ def _score_rows(scores: ArrayLike, name: str) -> np.ndarray:
     return arr
 
 
-def _cluster_labels(clusters: ArrayLike | None, n: int, name: str) -> np.ndarray:
-    if clusters is None:  # every state its own cluster (the state bootstrap), never shared with the other side
-        return np.char.add(f"{name}-state-", np.arange(n).astype(str))
-    labels = np.asarray(clusters).astype(str)
-    if labels.shape != (n,):
-        raise ValueError(f"{name} must give one cluster label per state ({n}), got shape {labels.shape}.")
-    return labels
-
-
 @dataclass
 class AurocInterval:
     """A bootstrap interval of the AUROC, with its replicates (to combine runs of several seeds)."""
@@ -181,10 +167,8 @@ def cluster_bootstrap_auroc(
 ) -> AurocInterval:
     """Percentile interval of the AUROC when whole clusters (episodes, configurations) are resampled.
 
-    ID clusters are drawn with replacement (as many as there are), and so are the OOD clusters
-    that do not occur on the ID side. An OOD cluster that shares its label with an ID cluster
-    (noise OOD states made from that ID episode's states) follows the draw of that ID cluster,
-    so dependent ID and OOD states are resampled together. Clusters None = each state its own.
+    The clusters are drawn by `statistics.cluster_resamples` (an OOD cluster sharing its label with an
+    ID cluster follows that cluster's draw); clusters None = each state its own.
     Scores may be (S, n): S scoring seeds of a stochastic method scored on the same states;
     each replicate is then the mean AUROC over the S seeds (the same clusters for all).
     """
@@ -192,185 +176,16 @@ def cluster_bootstrap_auroc(
     if id_s.shape[0] != ood_s.shape[0]:
         raise ValueError(f"id_scores has {id_s.shape[0]} scoring seeds but ood_scores {ood_s.shape[0]}; "
                          "give both the same.")
-    _check_bootstrap_args(rng, n_boot, level)
-    id_labels = _cluster_labels(id_clusters, id_s.shape[1], "id_clusters")
-    ood_labels = _cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")
-    id_names, id_index = np.unique(id_labels, return_inverse=True)
-    shared = np.isin(ood_labels, id_names)
-    own_names, own_index = np.unique(ood_labels[~shared], return_inverse=True)
-    n = id_s.shape[1] + ood_s.shape[1]
-    chunk = max(1, 2_000_000 // n)
+    check_bootstrap_args(rng, n_boot, level)
+    id_labels = cluster_labels(id_clusters, id_s.shape[1], "id_clusters")
+    ood_labels = cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")
+    chunk = max(1, 2_000_000 // (id_s.shape[1] + ood_s.shape[1]))
     replicates = []
-    for start in range(0, int(n_boot), chunk):
-        b = min(chunk, int(n_boot) - start)
-        id_counts = rng.multinomial(id_names.size, np.full(id_names.size, 1.0 / id_names.size), size=b)
-        w_ood = np.empty((b, ood_s.shape[1]))
-        w_ood[:, shared] = id_counts[:, np.searchsorted(id_names, ood_labels[shared])]
-        if own_names.size:
-            own_counts = rng.multinomial(own_names.size, np.full(own_names.size, 1.0 / own_names.size), size=b)
-            w_ood[:, ~shared] = own_counts[:, own_index]
-        w_id = id_counts[:, id_index].astype(float)
+    for w_id, w_ood in cluster_resamples(id_labels, ood_labels, rng, n_boot, chunk):
         aurocs = [_weighted_aurocs(i, o, w_id, w_ood) for i, o in zip(id_s, ood_s)]
         replicates.append(np.mean(aurocs, axis=0))
     reps = np.concatenate(replicates)
-    alpha = (1.0 - level) / 2.0
-    low, high = np.nanquantile(reps, [alpha, 1.0 - alpha])
-    return AurocInterval(float(low), float(high), reps)
-
-
-def seed_cluster_replicates(replicates: Sequence[np.ndarray], rng: np.random.Generator,
-                            n_boot: int = 1000) -> np.ndarray:
-    """Bootstrap replicates of a mean over training seeds: resample seeds, then clusters within each.
-
-    ``replicates[s]`` are seed s's cluster-bootstrap replicates (`cluster_bootstrap_auroc`, or
-    `mean_replicates` of its episodes). Each outer replicate draws as many seeds as there are,
-    with replacement, and for each draw one of that seed's replicates; their mean is the
-    replicate. With one seed these are that seed's own replicates (nothing to resample above them).
-    """
-    reps = _seed_replicates(replicates)
-    if len(reps) == 1:
-        return reps[0]
-    seeds = rng.integers(0, len(reps), size=(int(n_boot), len(reps)))
-    return _pick_per_seed(reps, seeds, rng)
-
-
-def _seed_replicates(replicates: Sequence[np.ndarray]) -> list[np.ndarray]:
-    reps = [np.asarray(r, dtype=float) for r in replicates]
-    if not reps or any(r.ndim != 1 or r.size == 0 for r in reps):
-        raise ValueError("replicates must be a non-empty list of non-empty 1-D arrays, one per training seed.")
-    return reps
-
-
-def _pick_per_seed(reps: list[np.ndarray], seeds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Mean over each row of drawn `seeds` of one randomly picked replicate of that seed (NaN-padded sizes)."""
-    picks = rng.random(size=seeds.shape)
-    sizes = np.array([r.size for r in reps])
-    stacked = np.full((len(reps), sizes.max()), np.nan)
-    for i, r in enumerate(reps):
-        stacked[i, :r.size] = r
-    return stacked[seeds, (picks * sizes[seeds]).astype(int)].mean(axis=1)
-
-
-def _percentile_interval(values: np.ndarray, level: float) -> tuple[float, float]:
-    alpha = (1.0 - level) / 2.0
-    low, high = np.nanquantile(values, [alpha, 1.0 - alpha])
-    return float(low), float(high)
-
-
-def t_interval(estimates: ArrayLike, level: float = 0.95) -> tuple[float, float]:
-    """Student's t interval of the mean of n >= 2 per-seed estimates: the floor of every interval over seeds."""
-    x = np.asarray(estimates, dtype=float)
-    if x.ndim != 1 or x.size < 2 or not np.all(np.isfinite(x)):
-        raise ValueError(f"t_interval needs two or more finite per-seed estimates, got {x.tolist()}.")
-    half = float(student_t.ppf(0.5 + level / 2.0, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
-    return float(x.mean() - half), float(x.mean() + half)
-
-
-def welch_interval(a: ArrayLike, b: ArrayLike, level: float = 0.95) -> tuple[float, float]:
-    """Welch's t interval of mean(a) - mean(b) for two independent samples of seeds (each n >= 2)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
-    se = np.sqrt(va + vb)
-    dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1)) if se > 0 else 1.0
-    half = float(student_t.ppf(0.5 + level / 2.0, dof) * se)
-    return float(a.mean() - b.mean() - half), float(a.mean() - b.mean() + half)
-
-
-def _widen(interval: tuple[float, float], floor: tuple[float, float]) -> tuple[float, float]:
-    return min(interval[0], floor[0]), max(interval[1], floor[1])
-
-
-def _seed_estimates(reps: list[np.ndarray], estimates: ArrayLike | None) -> np.ndarray:
-    est = np.array([r.mean() for r in reps]) if estimates is None else np.asarray(estimates, dtype=float)
-    if est.shape != (len(reps),):
-        raise ValueError(f"estimates must give one number per training seed ({len(reps)}), got shape {est.shape}.")
-    return est
-
-
-def seed_cluster_ci(replicates: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int = 1000,
-                    level: float = 0.95, estimates: ArrayLike | None = None) -> tuple[float, float]:
-    """Interval of the mean over training seeds: resample seeds, then clusters within each.
-
-    The percentile interval of `seed_cluster_replicates`, widened where needed to Student's t
-    interval over the seeds' `estimates` (each seed's own number; by default the mean of its
-    replicates): the hierarchical bootstrap may add the within-seed part, never go below t.
-    With one seed this is that seed's own cluster interval (episodes or states of one run only).
-    """
-    reps = _seed_replicates(replicates)
-    interval = _percentile_interval(seed_cluster_replicates(reps, rng, n_boot=n_boot), level)
-    if len(reps) < 2:
-        return interval
-    return _widen(interval, t_interval(_seed_estimates(reps, estimates), level))
-
-
-def mean_replicates(values: ArrayLike, rng: np.random.Generator, n_boot: int = 1000) -> np.ndarray:
-    """Bootstrap replicates of the mean of `values` (one seed's episodes), resampled with replacement.
-
-    ``values`` is (n,) or (m, n): m aligned rows (episode i of m methods played from the same
-    env seed) all resampled with the same draws, so replicate b of every row uses the same
-    episodes and differences of rows stay paired. Returns (n_boot,) or (m, n_boot).
-    """
-    arr = np.asarray(values, dtype=float)
-    rows = np.atleast_2d(arr)
-    if rows.ndim != 2 or rows.shape[1] == 0 or not np.all(np.isfinite(rows)):
-        raise ValueError(f"values must be (n,) or (m, n) finite numbers with n >= 1, got shape {arr.shape}.")
-    _check_bootstrap_args(rng, n_boot, 0.95)
-    n = rows.shape[1]
-    counts = rng.multinomial(n, np.full(n, 1.0 / n), size=int(n_boot))
-    reps = rows @ counts.T / n
-    return reps[0] if arr.ndim == 1 else reps
-
-
-#: How the replicates of two compared quantities relate (`seed_cluster_difference`).
-PAIRINGS = ("paired", "seeds", "unpaired")
-
-
-def seed_cluster_difference(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rng: np.random.Generator,
-                            pairing: str, n_boot: int = 1000) -> np.ndarray:
-    """Bootstrap replicates of mean(a) - mean(b), each a mean over training seeds of per-seed replicates.
-
-    - "paired": a[s] and b[s] come from the same seed and replicate i of both from the same
-      resample (same episodes, same clusters): seeds are drawn once and each seed's difference
-      replicates are used, so what both share cancels (identical data give exactly 0).
-    - "seeds": the same seeds (a[s] and b[s] of one run) but independent resamples within it:
-      seeds drawn once, a replicate picked for each side on its own.
-    - "unpaired": two independent samples (other runs, other seeds): each side is resampled on
-      its own and the replicates are matched at random, never by their order.
-    """
-    a, b = _seed_replicates(a), _seed_replicates(b)
-    if pairing not in PAIRINGS:
-        raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}.")
-    if pairing != "unpaired" and len(a) != len(b):
-        raise ValueError(f"a {pairing} difference needs the same seeds on both sides, got {len(a)} and {len(b)}.")
-    if pairing == "paired":
-        if any(x.size != y.size for x, y in zip(a, b)):
-            raise ValueError("paired replicates must have the same number per seed on both sides.")
-        return seed_cluster_replicates([x - y for x, y in zip(a, b)], rng, n_boot=n_boot)
-    if pairing == "seeds" and len(a) > 1:
-        seeds = rng.integers(0, len(a), size=(int(n_boot), len(a)))
-        return _pick_per_seed(a, seeds, rng) - _pick_per_seed(b, seeds, rng)
-    va, vb = seed_cluster_replicates(a, rng, n_boot=n_boot), seed_cluster_replicates(b, rng, n_boot=n_boot)
-    return va[rng.integers(0, va.size, size=int(n_boot))] - vb[rng.integers(0, vb.size, size=int(n_boot))]
-
-
-def difference_ci(a: Sequence[np.ndarray], b: Sequence[np.ndarray], rng: np.random.Generator, pairing: str,
-                  n_boot: int = 1000, level: float = 0.95, estimates_a: ArrayLike | None = None,
-                  estimates_b: ArrayLike | None = None) -> tuple[float, float]:
-    """Interval of mean(a) - mean(b) over training seeds (see `seed_cluster_difference`), at least Student's t.
-
-    The bootstrap's percentile interval, widened where needed to t over the per-seed differences
-    (paired and same-seed sides, n >= 2) or to Welch's interval (unpaired sides, each n >= 2).
-    `estimates_*` are each seed's own number (default: the mean of its replicates).
-    """
-    _check_bootstrap_args(rng, n_boot, level)
-    interval = _percentile_interval(seed_cluster_difference(a, b, rng, pairing, n_boot=n_boot), level)
-    reps_a, reps_b = _seed_replicates(a), _seed_replicates(b)
-    est_a, est_b = _seed_estimates(reps_a, estimates_a), _seed_estimates(reps_b, estimates_b)
-    if pairing != "unpaired" and len(reps_a) >= 2:
-        return _widen(interval, t_interval(est_a - est_b, level))
-    if pairing == "unpaired" and len(reps_a) >= 2 and len(reps_b) >= 2:
-        return _widen(interval, welch_interval(est_a, est_b, level))
-    return interval
+    return AurocInterval(*percentile_interval(reps, level), reps)
 
 
 def measure_metrics(
@@ -400,8 +215,8 @@ def measure_metrics(
                auroc_scoring_std=float(per_seed["auroc"].std(ddof=0)), auroc_scoring_min=float(per_seed["auroc"].min()),
                auroc_scoring_max=float(per_seed["auroc"].max()), n_scoring_seeds=int(len(per_seed)),
                n_id=int(id_s.shape[1]), n_ood=int(ood_s.shape[1]),
-               n_id_clusters=int(np.unique(_cluster_labels(id_clusters, id_s.shape[1], "id_clusters")).size),
-               n_ood_clusters=int(np.unique(_cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")).size))
+               n_id_clusters=int(np.unique(cluster_labels(id_clusters, id_s.shape[1], "id_clusters")).size),
+               n_ood_clusters=int(np.unique(cluster_labels(ood_clusters, ood_s.shape[1], "ood_clusters")).size))
     return row, interval.replicates
 
 
@@ -433,12 +248,3 @@ def metrics_table(
         rows.append({"measure": measure, **row})
     return pd.DataFrame(rows)
 
-
-def _check_bootstrap_args(rng: np.random.Generator, n_boot: int, level: float) -> None:
-    """The arguments every bootstrap here shares, checked where they enter."""
-    if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}.")
-    if int(n_boot) != n_boot or n_boot < 1:
-        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}.")
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1 (e.g. 0.95), got {level!r}.")

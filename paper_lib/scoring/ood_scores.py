@@ -27,7 +27,8 @@ from paper_lib.measures.estimates import policy_features
 from paper_lib.methods.policy import MemberActorCriticPolicy
 from paper_lib.ood.collect import noise_ood_states, score_dataset
 from paper_lib.ood.datasets import NO_CONFIG, StateDataset, check_labels
-from paper_lib.scoring.metrics import measure_metrics, roc_points, seed_cluster_ci
+from paper_lib.scoring.metrics import measure_metrics, roc_points
+from paper_lib.scoring.statistics import seed_cluster_ci
 
 #: What the metrics tables mean, for their captions.
 METRICS_NOTE = ("OOD is the positive class; FPR@95 is the share of ID states flagged when 95% of OOD states are "
@@ -47,6 +48,16 @@ class RunScores:
 def scoring_seeds(run_seed: int, n: int) -> list[int]:
     """The torch seeds a run is scored under: fixed by the run's seed, so regenerating repeats them."""
     return [int(np.random.SeedSequence([int(run_seed), 8, j]).generate_state(1)[0]) for j in range(n)]
+
+
+def part_seeds(torch_seed: int, parts: tuple[str, ...] = ("id", "perturbed", "noise")) -> dict[str, int]:
+    """The torch seed of each part under one scoring seed: the ID fit states ("fit"), then `parts` in score_run's order.
+
+    Part i gets SeedSequence([torch_seed, i]). Whoever needs a run's member samples as scoring drew them
+    (the value-level analysis) asks here, so the draws are the same states' same masks.
+    """
+    return {name: int(np.random.SeedSequence([int(torch_seed), i]).generate_state(1)[0])
+            for i, name in enumerate(["fit", *parts])}
 
 
 def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int | np.random.Generator,
@@ -160,8 +171,7 @@ def _score_parts(model: BaseAlgorithm, id_fit: StateDataset, parts: dict[str, St
     are not scored with the same masks; the policy features (feature detectors) of a state
     share its member outputs' masks, as one forward pass would.
     """
-    seeds = {name: int(np.random.SeedSequence([torch_seed, i]).generate_state(1)[0])
-             for i, name in enumerate(["fit", *parts])}
+    seeds = part_seeds(torch_seed, tuple(parts))
     fit_features = policy_features(model.policy, _policy_obs(id_fit), seed=seeds["fit"])
     detectors = {"mahalanobis_features": MahalanobisDetector().fit(fit_features),
                  "knn_features": KNNDetector().fit(fit_features)}
@@ -179,8 +189,8 @@ def summarize_seeds(metrics: pd.DataFrame, replicates: pd.DataFrame, rng: np.ran
                     level: float = 0.95, keys: tuple[str, ...] = ("env", "method")) -> pd.DataFrame:
     """One row per (keys, ood_set, measure) over the training seeds: the table's numbers.
 
-    Metrics are means over seeds (each already a mean over scoring seeds); the AUROC interval
-    resamples seeds, then clusters within each (`seed_cluster_ci`); auroc_seed_std is the
+    A table builder: metrics are means over seeds (each already a mean over scoring seeds); the AUROC
+    interval is `statistics.seed_cluster_ci` (seeds, then clusters within each); auroc_seed_std is the
     spread over training seeds (NaN with one), auroc_scoring_std the mean spread over scoring
     seeds. With one seed every number equals that run's own.
     """

@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.agents.envs import is_atari
 from paper_lib.methods.policy import MemberActorCriticPolicy
+from paper_lib.scoring.statistics import seed_mean_std
 
 #: Envs evaluated with sampled actions only. The paper: Berzerk "can only be sampled", since a
 #: deterministic agent gets stuck there, and each stuck episode would run to the 27,000-step limit
@@ -101,16 +102,14 @@ class IndicatorMaximum:
 
 
 def summarize_rewards(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean and std per env, method, inference and action mode.
+    """Mean and std per env, method, inference and action mode (Table 1's cells).
 
     With several seeds: the mean over seeds of each seed's episode mean, and the std across
-    seeds (the paper's Table 1). With one seed: the std is over episodes, and `std_over` says so.
+    seeds (the paper's Table 1; `statistics.seed_mean_std`). With one seed: the std is over
+    episodes, and `std_over` says so.
     """
     keys = [c for c in ("env", "method", "inference", "deterministic") if c in df.columns]
-    per_seed = df.groupby([*keys, "seed"])["reward"].mean().reset_index()
-    out = per_seed.groupby(keys)["reward"].agg(mean="mean", std="std", n_seeds="count").reset_index()
-    episodes = df.groupby(keys)["reward"].agg(episode_std="std", n_episodes="count").reset_index()
-    out = out.merge(episodes, on=keys)
+    out = seed_mean_std(df, keys, "reward").rename(columns={"row_std": "episode_std", "n_rows": "n_episodes"})
     single_seed = out["n_seeds"] < 2
     out.loc[single_seed, "std"] = out.loc[single_seed, "episode_std"]
     out["std_over"] = np.where(single_seed, "episodes", "seeds")
