@@ -103,6 +103,13 @@ def active_profile(root: Path = ROOT) -> str:
     return load_run_config(root / "params.yaml").profile
 
 
+def executed_notebooks(profile: str, root: Path = ROOT) -> Path:
+    """The folder of `profile`'s executed notebooks, results/<profile>/notebooks/ (paper_lib.pipeline.layout)."""
+    from paper_lib.pipeline.layout import Layout
+
+    return Layout.of(root, profile).notebooks
+
+
 def notebook_stages(dvc_yaml: Path = ROOT / "dvc.yaml") -> dict[str, tuple[str, str]]:
     """{executed notebook file name: (stage name, source notebook)} for every dvc.yaml stage that writes one.
 
@@ -134,7 +141,8 @@ def notebook_pages(profile: str, root: Path = ROOT) -> list[NotebookPage]:
 
     stages = notebook_stages(root / "dvc.yaml")
     pages = []
-    for executed in sorted((root / "results" / profile / "notebooks").glob("*.ipynb")):
+    folder = executed_notebooks(profile, root)
+    for executed in sorted(folder.glob("*.ipynb")):
         if executed.name not in stages:
             raise ValueError(f"{executed.relative_to(root)}: no dvc.yaml stage writes it (its outs name "
                              f"results/${{run.profile}}/notebooks/{executed.name}); the site names the stage of "
@@ -145,7 +153,7 @@ def notebook_pages(profile: str, root: Path = ROOT) -> list[NotebookPage]:
                       for line in cell.source.splitlines() if line.startswith("# ")), Path(executed.name).stem)
         pages.append(NotebookPage(executed.name, executed, executed.relative_to(root).as_posix(), source, stage, title))
     if not pages:
-        raise ValueError(f"no executed notebook in results/{profile}/notebooks/: `make reproduce` writes them")
+        raise ValueError(f"no executed notebook in {folder.relative_to(root)}/: `make reproduce` writes them")
     return pages
 
 
@@ -241,7 +249,8 @@ def _site_link(match: re.Match, here: str, sources: set[str], profile: str, root
     rel = posixpath.normpath(posixpath.join(here, unquote(path)))
     if rel in sources or rel.startswith("../"):
         return match.group(0)
-    executed = re.fullmatch(rf"results/{re.escape(profile)}/notebooks/([^/]+\.ipynb)", rel)
+    folder = executed_notebooks(profile, Path(".")).as_posix()  # relative to the repository, as `rel`
+    executed = re.fullmatch(rf"{re.escape(folder)}/([^/]+\.ipynb)", rel)
     if executed and f"notebooks/{executed.group(1)}" in sources:
         page = posixpath.relpath(f"notebooks/{executed.group(1)}", here or ".")
         return f"[{label}]({page}{hash_}{fragment})"

@@ -34,6 +34,7 @@ one call (10 min), so runs come back as resume points and finish here.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import io
 import json
 import os
@@ -47,7 +48,8 @@ import tarfile
 import time
 from pathlib import Path
 
-PROFILE_DIR = Path("results/paper/checkpoints")
+#: The profile whose checkpoints `launch ENV METHOD SEED` trains (the main matrix's).
+PROFILE = "paper"
 CHECK_EVERY = 30
 RESUME_EVERY = 25_000  # finer progress readings than the default 50k
 MAX_FILES, MAX_BYTES = 8, 60 * 2**20  # what one call of the lent machine returns (64 MiB), with room
@@ -67,6 +69,19 @@ def save_state(work: Path, state: dict) -> None:
     state_file(work).write_text(json.dumps(state, indent=1))
 
 
+def layout_module():
+    """paper_lib/pipeline/layout.py of this repository, loaded as a file: the paths' one home imports nothing of
+    paper_lib, and this script runs no torch (the package's __init__ imports it)."""
+    name = "_gpu_runs_layout"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "paper_lib" /
+                                                      "pipeline" / "layout.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
 def checkpoint_dir(run: dict) -> Path:
     """The run's checkpoint folder, relative to the repository (as on its queue line)."""
     return Path(run["folder"])
@@ -74,14 +89,15 @@ def checkpoint_dir(run: dict) -> Path:
 
 def run_name(run: dict) -> str:
     """A file name unique across trees: the folder below results/, without the `checkpoints` level."""
-    parts = [p for p in checkpoint_dir(run).parts if p not in ("results", "checkpoints")]
+    layout = layout_module()
+    parts = [p for p in checkpoint_dir(run).parts if p not in (layout.RESULTS, layout.RUN_FOLDERS["checkpoint"])]
     return "_".join(parts)
 
 
 def main_matrix_run(env_id: str, method: str, seed: int) -> dict:
     """A run of the main matrix, at its usual folder with the env's own settings."""
     return {"env": env_id, "method": method, "seed": seed,
-            "folder": str(PROFILE_DIR / env_id / method / f"seed{seed}"), "extra": []}
+            "folder": str(layout_module().Layout.of(".", PROFILE).checkpoint_dir(env_id, method, seed)), "extra": []}
 
 
 def queued_run(line: str) -> dict:

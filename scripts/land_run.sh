@@ -8,7 +8,12 @@ set -eu
 root=$(git rev-parse --show-toplevel)
 cd "$root"
 py="$root/.venv/bin/python"
-profile=$("$py" -c "from paper_lib.pipeline.config import load_run_config; print(load_run_config().profile)")
+# A run's checkpoint, dataset and evaluation paths and its stage names' suffix, from paper_lib.pipeline.layout.
+run_paths='import sys
+from paper_lib.pipeline.config import load_run_config
+from paper_lib.pipeline.layout import stage_suffix
+run, layout = (sys.argv[1], sys.argv[2], int(sys.argv[3])), load_run_config().layout
+print(layout.checkpoint_dir(*run), layout.dataset_path(*run), layout.evaluation_path(*run), stage_suffix(*run))'
 # A run of an env still under `retraining` was trained with that recipe, but its train stage would be recorded
 # against `hyperparameters` (the old runs' recipe): move the entry first, when the env's runs land together.
 retraining=" $("$py" -c "from paper_lib.pipeline.config import read_params; print(' '.join(read_params().get('retraining') or {}))") "
@@ -25,16 +30,16 @@ trap 'cd "$root" && git worktree remove --force "$wt"' EXIT
 stages=()
 while [ $# -ge 3 ]; do
   env_id=$1; method=$2; seed=$3; shift 3
-  ck=results/$profile/checkpoints/$env_id/$method/seed$seed
+  paths=$("$py" -c "$run_paths" "$env_id" "$method" "$seed")
+  read -r ck dataset evaluation suffix <<< "$paths"
   [ -f "$ck/model.zip" ] || { echo "error: $ck/model.zip is missing: train the run first" >&2; exit 2; }
   mkdir -p "$wt/$ck" && cp -r "$ck/." "$wt/$ck/"
   (cd "$wt" && nice -n 5 "$py" -m paper_lib.pipeline.stages collect "$env_id" "$method" "$seed" \
             && nice -n 5 "$py" -m paper_lib.pipeline.run_results evaluate "$env_id" "$method" "$seed")
-  for part in datasets evaluations; do
-    mkdir -p "results/$profile/$part/$env_id/$method"
-    cp "$wt/results/$profile/$part/$env_id/$method/seed$seed".* "results/$profile/$part/$env_id/$method/"
+  for out in "$dataset" "$evaluation"; do
+    mkdir -p "$(dirname "$out")" && cp "$wt/$out" "$out"
   done
-  for stage in train collect evaluate; do stages+=("$stage@$env_id-$method-$seed"); done
+  for stage in train collect evaluate; do stages+=("$stage@$suffix"); done
   echo "landed $env_id $method seed $seed"
 done
 "$root/.venv/bin/dvc" commit -f "${stages[@]}"

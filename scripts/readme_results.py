@@ -1,7 +1,8 @@
 """Paste the pipeline's tables into the README and the docs pages, each file written all or nothing.
 
 Numbers in the README and docs/ must be the pipeline's: this copies results/<profile>/tables/*.md between
-marker pairs (nothing typed by hand), one pair per place:
+marker pairs (nothing typed by hand), one pair per place (every path of results/<profile>/ from
+paper_lib.pipeline.layout):
 - `<!-- headline:start -->` / `<!-- headline:end -->` in README.md: the one headline table
   (`HEADLINE_TABLE`, Table 2's perturbed-state AUROC);
 - `<!-- results:start -->` / `<!-- results:end -->` in docs/results.md: every results table, with the run
@@ -28,14 +29,15 @@ from pathlib import Path
 import pandas as pd
 
 from paper_lib.measures.definitions import MEMBER_MEASURES
+from paper_lib.pipeline.layout import Layout
 
 README = Path("README.md")
 RESULTS_PAGE = Path("docs/results.md")
 BENCH_PAGE = Path("docs/benchmarks.md")
 DEVIATIONS_PAGE = Path("docs/deviations.md")
 HEADLINE_START, HEADLINE_END = "<!-- headline:start -->", "<!-- headline:end -->"
-#: The README's one headline table, a file of results/<profile>/tables/.
-HEADLINE_TABLE = "ood_auroc_perturbed.md"
+#: The README's one headline table, a table of results/<profile>/tables/ (its Markdown file is pasted).
+HEADLINE_TABLE = "ood_auroc_perturbed"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 BENCH_START, BENCH_END = "<!-- bench:start -->", "<!-- bench:end -->"
 PROBES_START, PROBES_END = "<!-- probes:start -->", "<!-- probes:end -->"
@@ -66,9 +68,9 @@ def _range(values: pd.Series) -> str:
     return f"{values.min():.2f}-{values.max():.2f}" if len(values) else "n/a"
 
 
-def reward_lines(tables: Path) -> list[str]:
+def reward_lines(layout: Layout) -> list[str]:
     """Ours against the paper, per run cell that exists (sampled actions, as the paper's Table 1)."""
-    vs = pd.read_csv(tables / "paper_vs_us_rewards.csv").dropna(subset=["ours"])
+    vs = pd.read_csv(layout.table("paper_vs_us_rewards", "csv")).dropna(subset=["ours"])
     lines = []
     for env, rows in vs.groupby("env", sort=False):
         cells = [f"{r.method} ({r.inference}) {r.ours:.0f} vs {r.paper:.0f}" for r in rows.itertuples()]
@@ -76,10 +78,10 @@ def reward_lines(tables: Path) -> list[str]:
     return lines
 
 
-def auroc_lines(tables: Path) -> list[str]:
+def auroc_lines(layout: Layout) -> list[str]:
     """Per env: member measures against member-free detectors on perturbed states, and the paper's cells."""
-    auroc = pd.read_csv(tables / "ood_auroc_perturbed.csv")
-    paper = pd.read_csv(tables / "paper_vs_us_auroc.csv")
+    auroc = pd.read_csv(layout.table("ood_auroc_perturbed", "csv"))
+    paper = pd.read_csv(layout.table("paper_vs_us_auroc", "csv"))
     envs = [c for c in auroc.columns if c not in ("method", "measure")]
     lines = []
     for env in envs:
@@ -94,9 +96,9 @@ def auroc_lines(tables: Path) -> list[str]:
     return lines
 
 
-def verdict_lines(tables: Path) -> list[str]:
+def verdict_lines(layout: Layout) -> list[str]:
     """Per claim of notebook 6: in which envs it holds, does not hold, or is inconclusive."""
-    path = tables / "paper_claims.csv"
+    path = layout.table("paper_claims", "csv")
     if not path.exists():
         return []
     claims = pd.read_csv(path)
@@ -107,20 +109,20 @@ def verdict_lines(tables: Path) -> list[str]:
     return lines
 
 
-def reading(tables: Path) -> str:
+def reading(layout: Layout) -> str:
     lines = ["What these numbers say (computed from the tables above by `scripts/readme_results.py`; cells "
              "with one seed are hints, not findings). The verdicts of notebook 6 (one rule for every claim: holds "
              "when the 95% interval excludes failure, does not hold when it excludes success, inconclusive "
              "otherwise):"]
-    return "\n".join(lines + verdict_lines(tables) + ["", "The numbers behind them:"] + reward_lines(tables)
-                     + auroc_lines(tables))
+    return "\n".join(lines + verdict_lines(layout) + ["", "The numbers behind them:"] + reward_lines(layout)
+                     + auroc_lines(layout))
 
 
-def repeated_games_line(tables: Path) -> str:
+def repeated_games_line(layout: Layout) -> str:
     """Notebook 2's count of the run x mode groups that replay a game, from the episodes it wrote ('' before it did)."""
     from paper_lib.reporting.paper_tables import repeated_games, repeated_games_note
 
-    path = tables / "reward_episodes.csv"
+    path = layout.reward_episodes
     if not path.exists():
         return ""
     episodes = pd.read_csv(path)
@@ -128,16 +130,16 @@ def repeated_games_line(tables: Path) -> str:
             f"{repeated_games_note(repeated_games(episodes), episodes)}")
 
 
-def run_count(results: Path) -> str:
+def run_count(layout: Layout) -> str:
     """The first line of runs.md: how many of the profile's runs exist and what they have."""
-    status = results / "runs.md"
+    status = layout.status_file
     first = status.read_text().splitlines()[0] if status.exists() else ""
     return first.lstrip("# ").removeprefix("Runs of ").strip()
 
 
-def training_time(results: Path) -> str:
+def training_time(layout: Layout) -> str:
     """runs.md's training wall time and its estimate for the missing runs (`pipeline_status`), or ''."""
-    status = results / "runs.md"
+    status = layout.status_file
     lines = status.read_text().splitlines() if status.exists() else []
     return " ".join(line for line in lines if line.startswith("Training wall time")
                     or (line.startswith("The ") and "without a checkpoint need about" in line))
@@ -179,92 +181,98 @@ def probe_table(csv: Path) -> str:
     return "\n".join(lines)
 
 
-def value_level_part(tables: Path) -> str:
+def value_level_part(layout: Layout) -> str:
     """Notebook 13's table with its computed reading: how much of value std's AUROC is the value level."""
     from paper_lib.experiments.value_level import value_level_reading
 
-    lines = value_level_reading(pd.read_csv(tables / "value_level.csv"))
+    lines = value_level_reading(pd.read_csv(layout.table("value_level", "csv")))
     return (f"### Is value uncertainty more than a low value? (notebook 13, beyond the paper)\n\n"
-            f"{(tables / 'value_level.md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
+            f"{layout.table('value_level', 'md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
 
 
-def independent_part(tables: Path) -> str:
+def independent_part(layout: Layout) -> str:
     """Notebook 11's independent ensembles beside the paper's appendix B.2 numbers, and its generated reading."""
-    table = (tables / "ensembles" / "ensembles_independent_vs_paper.md").read_text().strip()
-    reading = (tables / "ensembles" / "ensembles_independent_reading.md").read_text().strip().split("\n\n", 1)[-1]
+    ensembles = layout.table_folder("ensembles")
+    table = (ensembles / "ensembles_independent_vs_paper.md").read_text().strip()
+    reading = (ensembles / "ensembles_independent_reading.md").read_text().strip().split("\n\n", 1)[-1]
     return f"### Independently trained ensembles against the paper (notebook 11, appendix B.2)\n\n{table}\n\n{reading}"
 
 
-def own_vs_shared_part(tables: Path) -> str:
+def own_vs_shared_part(layout: Layout) -> str:
     """Notebook 11's own-vs-shared table and its generated reading."""
-    table = (tables / "ensembles" / "ensembles_own_vs_shared.md").read_text().strip()
-    reading = (tables / "ensembles" / "ensembles_own_vs_shared_reading.md").read_text().strip().split("\n\n", 1)[-1]
+    ensembles = layout.table_folder("ensembles")
+    table = (ensembles / "ensembles_own_vs_shared.md").read_text().strip()
+    reading = (ensembles / "ensembles_own_vs_shared_reading.md").read_text().strip().split("\n\n", 1)[-1]
     return f"### Does keeping each member on-policy help? `own` vs `shared` (notebook 11, beyond the paper)\n\n{table}\n\n{reading}"
 
 
-def study_part(tables: Path) -> str:
+def study_part(layout: Layout) -> str:
     """Notebook 9's reading as it stands: the sweep's progress (in the caption) and each env's leaders."""
+    study = layout.table_folder("study")
     return (f"### The study: the most performant configurations (notebook 9)\n\n"
-            f"{(tables / 'study' / 'study_reading.md').read_text().strip()}\n\n"
+            f"{(study / 'study_reading.md').read_text().strip()}\n\n"
             f"An env is read once all its studies reached their trial target; `_members` columns leave out the "
             f"baseline, whose member-free detector is the reference point. Per-study counts: "
-            f"`{tables / 'study' / 'study_summary.md'}`."
-            + _other_algorithms_part(tables))
+            f"`{study / 'study_summary.md'}`."
+            + _other_algorithms_part(layout))
 
 
-def _other_algorithms_part(tables: Path) -> str:
+def _other_algorithms_part(layout: Layout) -> str:
     """Notebook 9's check of appendix C's A2C/TRPO readings, once those studies are read."""
-    versus = tables / "study" / "study_other_algs_vs_paper.md"
+    versus = layout.table_folder("study") / "study_other_algs_vs_paper.md"
     if not versus.exists() or not len(pd.read_csv(versus.with_suffix(".csv"))):
         return ""
     return f"\n\nA2C and TRPO against appendix C:\n\n{versus.read_text().strip()}"
 
 
-def scaling_part(tables: Path) -> str:
+def scaling_part(layout: Layout) -> str:
     """Notebook 10's comparison with appendix E, once scaling runs are read."""
+    scaling = layout.table_folder("scaling")
     return (f"### Scaling the hidden layers against the paper (notebook 10, appendix E)\n\n"
-            f"{(tables / 'scaling' / 'scaling_vs_paper.md').read_text().strip()}\n\n"
-            f"Final rewards per width: `{tables / 'scaling' / 'scaling_final_reward.md'}`.")
+            f"{(scaling / 'scaling_vs_paper.md').read_text().strip()}\n\n"
+            f"Final rewards per width: `{scaling / 'scaling_final_reward.md'}`.")
 
 
-def headline_part(tables: Path) -> str:
+def headline_part(layout: Layout) -> str:
     """The README's headline table: the committed `HEADLINE_TABLE` as it is, and the file it comes from."""
-    return f"{(tables / HEADLINE_TABLE).read_text(encoding='utf-8').strip()}\n\n(Pasted from `{tables / HEADLINE_TABLE}`.)"
+    headline = layout.table(HEADLINE_TABLE, "md")
+    return f"{headline.read_text(encoding='utf-8').strip()}\n\n(Pasted from `{headline}`.)"
 
 
-def aggregate_parts(tables: Path) -> list[str]:
+def aggregate_parts(layout: Layout) -> list[str]:
     """Across envs first (the reader's first question): rliable's aggregates of reward and AUROC (notebooks 2, 3)."""
     stems = (("reward_aggregates", "Across envs: reward"), ("reward_improvement", "Across envs: P(more reward)"),
              ("auroc_aggregates", "Across envs: OOD detection"), ("auroc_improvement", "Across envs: P(higher AUROC)"))
-    return [f"### {title}\n\n{(tables / f'{stem}.md').read_text().strip()}" for stem, title in stems
-            if (tables / f"{stem}.md").exists()]
+    return [f"### {title}\n\n{layout.table(stem, 'md').read_text().strip()}" for stem, title in stems
+            if layout.table(stem, "md").exists()]
 
 
-def results_part(results: Path) -> str:
+def results_part(layout: Layout) -> str:
     """Everything docs/results.md shows between its markers: run count, Tables 1 and 2, the readings."""
-    tables = results / "tables"
-    parts = [f"Runs: {run_count(results)} (the list: `{results / 'runs.md'}`). {training_time(results)}".strip(),
-             *aggregate_parts(tables),
-             f"### Reward (Table 1)\n\n{(tables / 'rewards.md').read_text().strip()}{repeated_games_line(tables)}",
-             f"### Reward against the paper\n\n{(tables / 'paper_vs_us_rewards.md').read_text().strip()}",
-             f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{(tables / 'ood_auroc_perturbed.md').read_text().strip()}",
-             f"### OOD detection, ROC-AUC, noise states (2x ID std)\n\n{(tables / 'ood_auroc_noise.md').read_text().strip()}",
-             reading(tables)]
-    claims = tables / "paper_claims.md"
-    if claims.exists():
-        parts.append(f"### The paper's claims, checked (notebook 6)\n\n{claims.read_text().strip()}")
-    value_level = tables / "value_level.md"
-    if value_level.exists():
-        parts.append(value_level_part(tables))
-    if (tables / "ensembles" / "ensembles_independent_reading.md").exists():
-        parts.append(independent_part(tables))
-    if (tables / "ensembles" / "ensembles_own_vs_shared.md").exists():
-        parts.append(own_vs_shared_part(tables))
-    if (tables / "study" / "study_reading.md").exists():
-        parts.append(study_part(tables))
-    versus = tables / "scaling" / "scaling_vs_paper.csv"
+    def md(stem: str) -> str:
+        return layout.table(stem, "md").read_text().strip()
+
+    parts = [f"Runs: {run_count(layout)} (the list: `{layout.status_file}`). {training_time(layout)}".strip(),
+             *aggregate_parts(layout),
+             f"### Reward (Table 1)\n\n{md('rewards')}{repeated_games_line(layout)}",
+             f"### Reward against the paper\n\n{md('paper_vs_us_rewards')}",
+             f"### OOD detection, ROC-AUC (Table 2), perturbed states\n\n{md('ood_auroc_perturbed')}",
+             f"### OOD detection, ROC-AUC, noise states (2x ID std)\n\n{md('ood_auroc_noise')}",
+             reading(layout)]
+    if layout.table("paper_claims", "md").exists():
+        parts.append(f"### The paper's claims, checked (notebook 6)\n\n{md('paper_claims')}")
+    if layout.table("value_level", "md").exists():
+        parts.append(value_level_part(layout))
+    ensembles, study = layout.table_folder("ensembles"), layout.table_folder("study")
+    if (ensembles / "ensembles_independent_reading.md").exists():
+        parts.append(independent_part(layout))
+    if (ensembles / "ensembles_own_vs_shared.md").exists():
+        parts.append(own_vs_shared_part(layout))
+    if (study / "study_reading.md").exists():
+        parts.append(study_part(layout))
+    versus = layout.table_folder("scaling") / "scaling_vs_paper.csv"
     if versus.exists() and len(pd.read_csv(versus)):
-        parts.append(scaling_part(tables))
+        parts.append(scaling_part(layout))
     return "\n\n".join(parts)
 
 
@@ -294,9 +302,9 @@ def write_atomic(path: Path, text: str) -> None:
 
 def pastes(profile: str) -> dict[Path, list[tuple[str, str, str]]]:
     """Per file, the (start marker, end marker, body) pairs to paste, from the committed outputs that exist."""
-    results = Path("results") / profile
-    todo = {README: [(HEADLINE_START, HEADLINE_END, headline_part(results / "tables"))],
-            RESULTS_PAGE: [(START, END, results_part(results))]}
+    layout = Layout.of(".", profile)
+    todo = {README: [(HEADLINE_START, HEADLINE_END, headline_part(layout))],
+            RESULTS_PAGE: [(START, END, results_part(layout))]}
     bench = Path("results/bench/bench.csv")
     if bench.exists():
         todo[BENCH_PAGE] = [(BENCH_START, BENCH_END, bench_table(bench))]

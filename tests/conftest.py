@@ -23,7 +23,7 @@ SLOW_MODULES = {"test_pipeline", "test_faults", "test_guard", "test_study", "tes
                 "test_bench", "test_spawn", "test_value_level", "test_door_checks_entry", "test_train_queue",
                 "test_gpu_runs", "test_atari_head", "test_ood_atari", "test_evaluate_agent", "test_collect",
                 "test_train", "test_training_numerics", "test_bad_inputs", "test_ood_coverage", "test_verify",
-                "test_lab", "test_site", "test_score_provenance"}
+                "test_lab", "test_site", "test_score_provenance", "test_ensembles_provenance"}
 
 
 def pytest_collection_modifyitems(config, items) -> None:

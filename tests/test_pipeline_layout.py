@@ -146,6 +146,32 @@ def test_main_tree_paths():
             bad()
 
 
+def test_the_paths_the_notebooks_ask_for():
+    """Tables and figures by stem (a stem no stage declares is refused), the folders stages write whole, and the
+    files the notebooks read beside them."""
+    layout = Layout.of("/repo", "cpu")
+    tree = Path("/repo/results/cpu")
+    assert layout.table("rewards_long") == tree / "tables" / "rewards_long"
+    assert layout.table("ood_metrics", "csv") == tree / "tables" / "ood_metrics.csv"
+    assert layout.table("ood_source_coverage", "md") == tree / "tables" / "ood_source_coverage.md"  # conditional
+    assert layout.figure("training_curves") == tree / "figures" / "training_curves"
+    assert layout.figure("auroc_profiles", "pdf") == tree / "figures" / "auroc_profiles.pdf"
+    assert layout.table_files("rewards") == tuple(layout.table("rewards", fmt) for fmt in TABLE_FORMATS)
+    assert layout.figure_files("reward_profiles") == tuple(layout.figure("reward_profiles", fmt) for fmt in FIGURE_FORMATS)
+    assert layout.table_folder("study") == tree / "tables" / "study"
+    assert layout.figure_folder("uncertainty_over_time") == tree / "figures" / "over_time"
+    assert layout.reward_episodes == tree / "tables" / "reward_episodes.csv"
+    assert layout.training_curve("Ant-v5", "ensemble", 2) == tree / "checkpoints/Ant-v5/ensemble/seed2/training_curve.csv"
+    assert layout.spawn_file("rollouts") == tree / "spawn" / "rollouts.csv"
+    assert layout.guard_dir("Ant-v5", "ensemble", 2) == tree / "guards/Ant-v5/ensemble/seed2"
+    for bad in (lambda: layout.table("reward_long"), lambda: layout.table("rewards", "png"),
+                lambda: layout.figure("rewards"), lambda: layout.figure("training_curves", "csv"),
+                lambda: layout.table_folder("rewards"), lambda: layout.figure_folder("nope"),
+                lambda: layout.spawn_file("frames")):
+        with pytest.raises(ValueError):
+            bad()
+
+
 def test_the_commands_that_call_dvc_name_its_stages():
     """`make reproduce` / `make recollect` call stages by name; each is one the layout (and so dvc.yaml) has."""
     from paper_lib.pipeline.reproduce import EXPERIMENT_STAGES, RECORDING_STAGES, TABLE_STAGES

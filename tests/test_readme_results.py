@@ -16,6 +16,8 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 import readme_results  # noqa: E402
 
+from paper_lib.pipeline.layout import Layout  # noqa: E402
+
 #: Every file the script pastes into, and its marker pairs.
 PASTED = {
     readme_results.README: [(readme_results.HEADLINE_START, readme_results.HEADLINE_END)],
@@ -81,14 +83,15 @@ def test_committed_readme_and_docs_match_what_the_script_pastes(tmp_path: Path, 
 
 def test_every_paste_holds_the_committed_tables(profile: str):
     # each marker pair of each file holds its tables: a paste that went missing (or landed elsewhere) fails here
-    tables = REPO / "results" / profile / "tables"
+    layout = Layout.of(REPO, profile)
+    tables = layout.tables
     text = {path: (REPO / path).read_text() for path in PASTED}
     headline = block(text[readme_results.README], readme_results.HEADLINE_START, readme_results.HEADLINE_END)
-    assert (tables / readme_results.HEADLINE_TABLE).read_text().strip() in headline
+    assert layout.table(readme_results.HEADLINE_TABLE, "md").read_text().strip() in headline
     results = block(text[readme_results.RESULTS_PAGE], readme_results.START, readme_results.END)
     for name in ("rewards.md", "paper_vs_us_rewards.md", "ood_auroc_perturbed.md", "ood_auroc_noise.md"):
         assert (tables / name).read_text().strip() in results, f"docs/results.md lacks {name}"
-    for line in readme_results.reward_lines(tables) + readme_results.auroc_lines(tables):
+    for line in readme_results.reward_lines(layout) + readme_results.auroc_lines(layout):
         assert line in results
     assert block(text[readme_results.BENCH_PAGE], readme_results.BENCH_START, readme_results.BENCH_END) == \
         readme_results.bench_table(REPO / "results/bench/bench.csv")

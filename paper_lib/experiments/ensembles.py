@@ -29,6 +29,8 @@ readers serve the `own` runs unchanged. Under results/<profile>/:
 
     independent/checkpoints/<env>/baseline/seed<s>/           one member
     independent/{datasets,evaluations}/<env>/members-0-1-2-3.{npz,csv}, independent/scores/<env>/members-0-1-2-3/
+        metrics.csv, provenance.json (the combination, and the SHA-256 of its dataset and of each member's
+        model.zip and vecnormalize.pkl: readers refuse scores whose inputs changed, or without the record)
     own/{checkpoints,datasets,evaluations,scores}/<env>/<method>/seed<s>...   as the main tree, assignment own
     {checkpoints,datasets,evaluations,scores}/<env>/<method>/seed<s>...       the shared twins: the main tree
 
@@ -37,6 +39,7 @@ readers serve the `own` runs unchanged. Under results/<profile>/:
     python -m paper_lib.experiments.ensembles collect     # ID/OOD states of every combination and run that lacks them
     python -m paper_lib.experiments.ensembles evaluate    # reward episodes and OOD scores of the same
     python -m paper_lib.experiments.ensembles missing
+    python -m paper_lib.experiments.ensembles provenance  # records what existing scores were made from, checked first
 """
 
 from __future__ import annotations
@@ -61,12 +64,17 @@ from paper_lib.agents.checkpoints import Checkpoint, load_checkpoint
 from paper_lib.agents.envs import is_atari
 from paper_lib.agents.factory import config_value
 from paper_lib.agents.training import hp_flags, train_command
-from paper_lib.common.io import write_text_atomic
+from paper_lib.common.io import atomic_dir, write_json_atomic, write_text_atomic
+from paper_lib.common.provenance import file_digest
 from paper_lib.methods.independent import assemble_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS
 from paper_lib.ood.datasets import StateDataset
 from paper_lib.pipeline.config import PARAMS_FILE, RunConfig, check_keys, parse_params, validate_params
 from paper_lib.pipeline.layout import RUN_FOLDERS, combination_name
+from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, check_provenance,
+                                            check_score_provenance, check_scores_destination, describe_identity,
+                                            identity_error, provenance_record, provenance_to_record,
+                                            provenance_to_write)
 from paper_lib.pipeline.stages import collect_run, collect_states
 
 SECTION = "ensembles"
@@ -79,6 +87,12 @@ TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dro
 ARTIFACTS = tuple(RUN_FOLDERS)
 #: How to fix a wrong `ensembles` section, said at the end of each error.
 FIX = "see docs/ensembles.md"
+#: The `method` of an assembled ensemble (its checkpoint config, its dataset's metadata, its scores' rows).
+ENSEMBLE_METHOD = "independent_ensemble"
+#: What a combination's scores folder holds: its metrics and what they were made from.
+COMBINATION_SCORE_FILES = ("metrics.csv", PROVENANCE_FILE)
+#: The command that records what existing ensembles scores were made from (`record_provenance`).
+BACKFILL = "python -m paper_lib.experiments.ensembles provenance"
 
 
 def _fail(path: Path, where: str, problem: str) -> ValueError:
@@ -459,7 +473,7 @@ def assemble_members(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]
     checkpoints = [load_checkpoint(cfg.member_dir(env_id, s), env_id, "baseline", s) for s in members]
     normalizers = [_read_normalizer(c.vecnormalize_path) if c.vecnormalize_path is not None else None
                    for c in checkpoints]
-    config = dict(algo="ppo", method="independent_ensemble", env_id=env_id, member_seeds=list(members),
+    config = dict(algo="ppo", method=ENSEMBLE_METHOD, env_id=env_id, member_seeds=list(members),
                   n_members=len(members), inference=cfg.run.inference, normalize_obs=False,
                   members_normalize_obs=any(n is not None for n in normalizers),
                   member_folders=[str(c.folder) for c in checkpoints])
@@ -530,19 +544,18 @@ def evaluate_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
             if not combination_has(cfg, env_id, members, "dataset") or not combination_has(cfg, env_id, members,
                                                                                              "checkpoint"):
                 continue
-            tag = dict(env=env_id, method="independent_ensemble", combination=c, members=combination_name(members))
             todo = [p for p in (cfg.combination_evaluation(env_id, members), cfg.combination_metrics(env_id, members))
                     if not p.is_file()]
             if not todo:
                 continue
+            if not cfg.combination_metrics(env_id, members).is_file():  # before any work
+                check_scores_destination(combination_scores_dir(cfg, env_id, members), env_id, COMBINATION_SCORE_FILES)
             ensemble = assemble_members(cfg, env_id, members)
             if not cfg.combination_evaluation(env_id, members).is_file():
-                episodes = evaluate_agent(cfg.run, ensemble, c).assign(**tag)
+                episodes = evaluate_agent(cfg.run, ensemble, c).assign(**_combination_tag(env_id, c, members))
                 written.append(write_text_atomic(cfg.combination_evaluation(env_id, members), _csv(episodes)))
             if not cfg.combination_metrics(env_id, members).is_file():
-                data = StateDataset.load(cfg.combination_dataset(env_id, members))
-                metrics = score_agent(cfg.run, ensemble, data, c).assign(**tag)
-                written.append(write_text_atomic(cfg.combination_metrics(env_id, members), _csv(metrics)))
+                written.append(score_combination(cfg, env_id, c, members, ensemble))
             log(f"evaluated {env_id} {combination_name(members)}")
     for tree, run in _runs_to_do(cfg, "evaluation"):
         written.append(evaluate_run(tree, *run))
@@ -551,6 +564,156 @@ def evaluate_all(cfg: EnsemblesConfig, log=print) -> list[Path]:
         written.append(score_run_files(tree, *run))
         log(f"scored {written[-1]}")
     return written
+
+
+def _combination_tag(env_id: str, c: int, members: tuple[int, ...]) -> dict[str, Any]:
+    """The columns naming a combination in its evaluation and metrics rows."""
+    return dict(env=env_id, method=ENSEMBLE_METHOD, combination=c, members=combination_name(members))
+
+
+def score_combination(cfg: EnsemblesConfig, env_id: str, c: int, members: tuple[int, ...],
+                      ensemble: Checkpoint | None = None) -> Path:
+    """OOD metrics of combination c (members `members`) from its dataset, written with their provenance at once
+    (`combination_provenance`, of the files as they are when scoring starts); returns the metrics file.
+
+    A folder at the scores path holding files but none of a combination's is refused before any work, as the main
+    score stage does; a dataset collected by another combination is refused before scoring.
+    """
+    out = check_scores_destination(combination_scores_dir(cfg, env_id, members), env_id, COMBINATION_SCORE_FILES)
+    provenance = combination_provenance(cfg, env_id, members)
+    path = cfg.combination_dataset(env_id, members)
+    data = StateDataset.load(path)
+    check_combination_dataset(data.metadata, path, env_id, c, members)
+    ensemble = ensemble or assemble_members(cfg, env_id, members)
+    metrics = score_agent(cfg.run, ensemble, data, c).assign(**_combination_tag(env_id, c, members))
+    with atomic_dir(out) as tmp:
+        (tmp / "metrics.csv").write_text(_csv(metrics))
+        write_json_atomic(tmp / PROVENANCE_FILE, provenance)
+    return out / "metrics.csv"
+
+
+# ------------------------------------------------------------------ provenance: scores <- their inputs
+# The main matrix's record (paper_lib.pipeline.run_results), with an assembled ensemble's identity: the env, the method
+# and the members (no seed), and one SHA-256 per member checkpoint file, named `seed<s>/model.zip` (the member's
+# folder under checkpoints/<env>/baseline/). An `own` run is a run of the own tree: the main matrix's record as is.
+
+
+def combination_scores_dir(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]) -> Path:
+    return cfg.combination_metrics(env_id, members).parent
+
+
+def combination_identity(env_id: str, members: tuple[int, ...]) -> dict[str, Any]:
+    return {"env": env_id, "method": ENSEMBLE_METHOD, "members": list(members)}
+
+
+def combination_inputs(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]) -> dict[str, Path]:
+    """The files a combination's scores are made from: its dataset and each member's model.zip and normalizer."""
+    return {"dataset": cfg.combination_dataset(env_id, members),
+            **{f"seed{s}/{name}": cfg.member_dir(env_id, s) / name for s in members for name in CHECKPOINT_INPUTS}}
+
+
+def combination_provenance(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]) -> dict[str, Any]:
+    """What a combination's scores are made from, as its `provenance.json` holds it."""
+    return provenance_record(combination_identity(env_id, members), combination_inputs(cfg, env_id, members))
+
+
+def _rescore(folder: Path) -> str:
+    """How to make ensembles scores again: `evaluate` scores what has no metrics.csv."""
+    return f"score them again (move {folder} away, then `python -m paper_lib.experiments.ensembles evaluate`)"
+
+
+def check_combination_provenance(cfg: EnsemblesConfig, env_id: str, members: tuple[int, ...]) -> None:
+    """A combination's scores must carry their record, naming this combination and its current dataset and members'
+    files; one ValueError naming both sides otherwise, or the backfill command where the record is missing."""
+    folder = combination_scores_dir(cfg, env_id, members)
+    check_provenance(folder, combination_identity(env_id, members), combination_inputs(cfg, env_id, members),
+                     _rescore(folder), BACKFILL, required=True)
+
+
+def check_own_provenance(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> None:
+    """An `own` run's scores must carry their record (the main matrix's), naming the run and its current files."""
+    check_score_provenance(cfg.own, env_id, method, seed, required=True,
+                           rescore=_rescore(cfg.own.layout.scores_dir(env_id, method, seed)), backfill=BACKFILL)
+
+
+def check_combination_dataset(metadata: dict[str, Any], path: Path, env_id: str, c: int,
+                              members: tuple[int, ...]) -> None:
+    """The dataset at a combination's path must be one collected by an assembled ensemble of as many members in that
+    env, with combination c's seed (`collect_all`: `collect_states` seeds the ID states with 1000 c + 1); its metadata
+    holds no member seeds, so the seed tells the combinations apart."""
+    model = metadata.get("model") or {}
+    ids = [p for p in metadata.get("parts") or [metadata] if p.get("kind") == "id"]
+    found = (model.get("env_id", metadata.get("env_id")), model.get("method"), model.get("n_members"),
+             ids[0].get("seed") if ids else None)
+    wanted = (env_id, ENSEMBLE_METHOD, len(members), 1000 * c + 1)
+    if found != wanted:
+        raise ValueError(f"{path} was collected by {found[0]} {found[1]} of {found[2]} members with ID seed "
+                         f"{found[3]}, not by {env_id} {combination_name(members)} (combination {c}: {len(members)} "
+                         f"members, ID seed {wanted[3]}) whose path it sits at; put back its own dataset (`python -m "
+                         "paper_lib.experiments.ensembles collect` collects a missing one)")
+
+
+def _combination_record(cfg: EnsemblesConfig, env_id: str, c: int, members: tuple[int, ...]) -> dict[str, Any] | None:
+    """The record `record_provenance` writes for a combination (None: already there), after every check on it: its
+    metrics name it, each member is trained as the rule says, its inputs are present, its dataset is its own."""
+    identity, folder = combination_identity(env_id, members), combination_scores_dir(cfg, env_id, members)
+    path = folder / "metrics.csv"
+    metrics = pd.read_csv(path)
+    tag = _combination_tag(env_id, c, members)
+    named = {k: ", ".join(map(str, sorted(set(metrics[k]), key=str))) if k in metrics else None for k in tag}
+    if any(named[k] != str(v) for k, v in tag.items()):
+        found = {"env": named["env"], "method": named["method"],
+                 "members": f"{named['members']} (combination {named['combination']})"}
+        raise identity_error(path, found, identity)
+    for seed in members:
+        if problem := member_problem(cfg, env_id, seed):
+            raise ValueError(f"member {cfg.member_dir(env_id, seed)} of {describe_identity(identity)}: {problem}; its "
+                             "scores are not recorded as made from it")
+    inputs = combination_inputs(cfg, env_id, members)
+    record = provenance_record(identity, inputs)  # a missing input: one error naming it
+    with np.load(inputs["dataset"], allow_pickle=False) as data:
+        check_combination_dataset(json.loads(str(data["metadata"])), inputs["dataset"], env_id, c, members)
+    return provenance_to_write(folder, record, inputs, _rescore(folder), BACKFILL)
+
+
+def _own_record(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> dict[str, Any] | None:
+    """The record of an `own` run's scores (None: already there), after the main matrix's checks and two of its own:
+    the checkpoint is trained with `assignment="own"`, and no input or metrics file is a copy of the shared twin's (a
+    run's metadata does not hold its assignment, so only the bytes tell the twins' files apart)."""
+    if problem := own_problem(cfg, env_id, method, seed):
+        raise ValueError(f"{cfg.own.checkpoint_dir(env_id, method, seed)}: {problem}; its scores are not recorded as "
+                         "made from it")
+    twins = [(tree.dataset_path(env_id, method, seed), tree.checkpoint_dir(env_id, method, seed) / CHECKPOINT_INPUTS[0],
+              tree.layout.scores_dir(env_id, method, seed) / "metrics.csv") for tree in (cfg.own, cfg.shared)]
+    for own, shared in zip(*twins):
+        if own.is_file() and shared.is_file() and file_digest(own) == file_digest(shared):
+            raise ValueError(f"{own} has the same bytes as the shared twin's {shared}: a file of the other run is "
+                             "never recorded as the own run's; put back the own run's file")
+    folder = cfg.own.layout.scores_dir(env_id, method, seed)
+    return provenance_to_record(cfg.own, env_id, method, seed, rescore=_rescore(folder), backfill=BACKFILL)
+
+
+def record_provenance(cfg: EnsemblesConfig) -> tuple[list[Path], int]:
+    """Write `provenance.json` into every scored combination's and own run's folder that has none, from the current
+    files: (the records written, the number of scored folders).
+
+    As the main matrix's backfill (`run_results.record_provenance`): for committed scores whose inputs have not changed
+    since they were scored; nothing is rescored. Every folder is checked before any file is written (its metrics name
+    it, its dataset is its own, its members or checkpoint are the ones the profile says, no input is missing, a record
+    there already names the same files): one error, and nothing is written. Records already there are left as they are.
+    """
+    records = []
+    for env_id in cfg.envs:
+        for c, members in enumerate(cfg.combinations()):
+            folder = combination_scores_dir(cfg, env_id, members)
+            if (folder / "metrics.csv").is_file():
+                records.append((folder, _combination_record(cfg, env_id, c, members)))
+    for run in cfg.own_runs():
+        folder = cfg.own.layout.scores_dir(*run)
+        if (folder / "metrics.csv").is_file():
+            records.append((folder, _own_record(cfg, *run)))
+    written = [write_json_atomic(folder / PROVENANCE_FILE, record) for folder, record in records if record is not None]
+    return written, len(records)
 
 
 def _make_dirs(cfg: EnsemblesConfig, *artifacts: str) -> None:
@@ -594,6 +757,8 @@ def main(argv: list[str] | None = None) -> None:
     queue.add_argument("--resume-root", default=None, help="prefix each line with env PAPER_LIB_RESUME_ROOT=DIR")
     queue.add_argument("--python", default=".venv/bin/python")
     sub.add_parser("missing", help="list what the tables still lack")
+    sub.add_parser("provenance", help="record what the existing scores of every combination and own run were made "
+                                      "from (each checked first; nothing is rescored)")
     args = parser.parse_args(argv)
     try:
         cfg = load_ensembles_config(args.params)
@@ -605,6 +770,10 @@ def main(argv: list[str] | None = None) -> None:
             collect_all(cfg)
         elif args.command == "evaluate":
             evaluate_all(cfg)
+        elif args.command == "provenance":
+            written, scored = record_provenance(cfg)
+            print(f"{len(written)} provenance record(s) written, {scored - len(written)} already there "
+                  f"({scored} scored combinations and own runs of profile {cfg.run.profile!r})")
         elif args.command == "queue":
             for line in queue_lines(cfg, args.resume_root, args.python):
                 print(line)

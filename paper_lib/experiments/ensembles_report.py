@@ -3,7 +3,9 @@
 The expensive work (playing evaluation episodes, scoring states) is done once per combination
 and per run by `python -m paper_lib.experiments.ensembles evaluate` (and, for the shared twins, by the main
 pipeline); this module only reads those small files, so the notebook runs in seconds. Runs
-that are not complete yet are left out here; `ensembles.missing_runs` lists them.
+that are not complete yet are left out here; `ensembles.missing_runs` lists them. Scores are read only with their
+`provenance.json` naming what is there now (`ensembles.check_combination_provenance`, `check_own_provenance`; the
+shared twins are the main matrix's scores, checked as its readers check them).
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import seaborn as sns
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from paper_lib.experiments.ensembles import ASSIGNMENTS, EnsemblesConfig, complete_combinations, complete_pairs
+from paper_lib.experiments.ensembles import (ASSIGNMENTS, EnsemblesConfig, check_combination_provenance,
+                                             check_own_provenance, complete_combinations, complete_pairs)
 from paper_lib.methods.networks import METHODS
 from paper_lib.pipeline.run_results import read_evaluations, read_scores, scores_dir
 from paper_lib.reporting.paper_tables import reward_table
@@ -41,17 +44,23 @@ def _frame(parts: list[pd.DataFrame]) -> pd.DataFrame:
 
 
 def read_independent(cfg: EnsemblesConfig) -> Results:
-    """Episodes and OOD metrics of every complete combination (columns env, combination, members, ...)."""
+    """Episodes and OOD metrics of every complete combination (columns env, combination, members, ...); scores whose
+    record is missing or names other inputs than the combination's current files are refused."""
     done = complete_combinations(cfg)
+    for env_id, _, members in done:
+        check_combination_provenance(cfg, env_id, members)
     return Results(_frame([pd.read_csv(cfg.combination_evaluation(e, m)) for e, _, m in done]),
                    _frame([pd.read_csv(cfg.combination_metrics(e, m)) for e, _, m in done]))
 
 
 def read_own_vs_shared(cfg: EnsemblesConfig) -> Results:
-    """Episodes and OOD metrics of both twins of every complete, comparable pair (column `assignment`)."""
+    """Episodes and OOD metrics of both twins of every complete, comparable pair (column `assignment`); an own run's
+    scores whose record is missing or names other inputs are refused (the shared twins': as the main matrix's)."""
     runs = complete_pairs(cfg)
     if not runs:
         return Results(pd.DataFrame(), pd.DataFrame())
+    for run in runs:
+        check_own_provenance(cfg, *run)
     rewards = [read_evaluations(cfg.tree(a), runs).assign(assignment=a) for a in ASSIGNMENTS]
     metrics = [read_scores(cfg.tree(a), runs, "metrics").assign(assignment=a) for a in ASSIGNMENTS]
     return Results(_frame(rewards), _frame(metrics))

@@ -7,22 +7,30 @@ exactly those: a path renamed here or there and not in both places fails that te
 
     results/<profile>/                                 Layout(root / "results" / profile)
       checkpoints/<env>/<method>/seed<s>/                a trained run            (train)
+        training_curve.csv                                 its training curve
       datasets/<env>/<method>/seed<s>.npz                its ID and OOD states    (collect)
       evaluations/<env>/<method>/seed<s>.csv             its reward episodes      (evaluate)
       scores/<env>/<method>/seed<s>/                     its OOD scores           (score)
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
+      tables/<folder>/, figures/<folder>/                what a notebook writes whole (STAGE_TABLE_FOLDERS, ...)
+      tables/reward_episodes.csv                         every evaluation episode, as notebook 02 read them
       notebooks/<notebook>.ipynb                         each executed notebook (NOTEBOOKS)
       notebooks/train/<env>-<method>-seed<s>.ipynb       each run's executed training notebook
       recordings/{example_states,quickstart}.npz         simulated material notebooks 07 and 00 draw
       guards/<env>/<method>/seed<s>/                     the guard experiment's replay of a run
-      spawn/, value_level/                               the experiments' rows per run
+      spawn/{rollouts,summary}.csv, value_level/         the experiments' rows per run
       studies/studies.db                                 the Optuna study database
       scaling/<env>/<method>/w<width>/seed<s>/           the scaling runs
       independent/, own/                                 the ensembles' trees, laid out as this one (ENSEMBLE_PARTS)
       runs.md                                            which runs exist (paper_lib.pipeline.status)
 
-The notebooks still spell their table and figure stems themselves (their committed executions hold their
-source): STAGE_TABLES and STAGE_FIGURES name them once more, for the check against dvc.yaml.
+The notebooks and scripts ask a Layout (through `RunConfig.layout` where they have a config) for the paths
+under results/<profile>/ they read and write; the quickstart takes its paths as parameters, which dvc.yaml
+passes. Notebooks 08 (guard) and 12 (spawn) still spell theirs: their stages replay episodes, and their committed
+executions hold their source, so they move to Layout when `make recollect` next runs them. They still spell the stems of their tables and figures (their committed executions hold their source):
+`Layout.table` and `Layout.figure` refuse a stem that STAGE_TABLES (or CONDITIONAL_TABLES) and STAGE_FIGURES do
+not name, so a notebook cannot write a table dvc.yaml does not know of; the files inside a folder a stage writes
+whole (`Layout.table_folder`, `Layout.figure_folder`) are the stage's own.
 """
 
 from __future__ import annotations
@@ -45,6 +53,12 @@ TABLE_FORMATS = ("csv", "md", "tex")
 FIGURE_FORMATS = ("png", "pdf")
 #: The recordings notebooks draw instead of simulating (paper_lib.experiments.recordings).
 RECORDINGS = ("example_states", "quickstart")
+#: A checkpoint folder's training curve (paper_lib.agents.training writes it beside CHECKPOINT_FILES).
+TRAINING_CURVE = "training_curve.csv"
+#: The spawn experiment's rows (notebook 12), each a CSV under spawn/.
+SPAWN_FILES = ("rollouts", "summary")
+#: Every evaluation episode the `rewards` stage read, one CSV under tables/ beside its tables.
+REWARD_EPISODES = "reward_episodes.csv"
 
 #: The executed notebook of each notebook stage, under notebooks/ (the source is notebooks/<name>.ipynb too).
 NOTEBOOKS = {"quickstart": "00_quickstart", "rewards": "02_rewards", "ood": "03_ood_detection",
@@ -75,6 +89,10 @@ STAGE_FIGURE_FOLDERS = {"uncertainty_over_time": ("over_time",), "training_and_p
                         "spawn": ("spawn",), "value_level": ("value_level",), "study": ("study",),
                         "scaling": ("scaling",), "ensembles": ("ensembles",)}
 STAGE_TABLE_FOLDERS = {"guard": ("guard",), "study": ("study",), "scaling": ("scaling",), "ensembles": ("ensembles",)}
+#: Every stem of a table written directly under tables/, and of a figure under figures/ (what `Layout.table` and
+#: `Layout.figure` accept).
+TABLE_STEMS = frozenset(stem for stems in (*STAGE_TABLES.values(), *CONDITIONAL_TABLES.values()) for stem in stems)
+FIGURE_STEMS = frozenset(stem for stems in STAGE_FIGURES.values() for stem in stems)
 #: The tables `paper_vs_us` reads (as CSV), each written by `rewards` or `ood`.
 PAPER_VS_US_READS = ("rewards_long", "ood_metrics", "reward_vs_baseline", "auroc_vs_detectors", "auroc_between_methods")
 #: The per-run stages of dvc.yaml (`foreach` over runs.yaml), in pipeline order.
@@ -155,6 +173,10 @@ class Layout:
             raise ValueError(f"unknown artifact {artifact!r}; use one of {list(RUN_FOLDERS)}")
         return build[artifact](env_id, method, seed)
 
+    def training_curve(self, env_id: str, method: str, seed: int) -> Path:
+        """The training curve a run's checkpoint folder holds (TRAINING_CURVE)."""
+        return self.checkpoint_dir(env_id, method, seed) / TRAINING_CURVE
+
     def train_notebook(self, env_id: str, method: str, seed: int) -> Path:
         """The executed training notebook of one run (the `train` stage's)."""
         return self.notebooks / "train" / f"{env_id}-{method}-{seed_name(seed)}.ipynb"
@@ -175,6 +197,30 @@ class Layout:
     def notebook(self, stage: str) -> Path:
         """The executed notebook of a notebook stage (a key of NOTEBOOKS)."""
         return self.notebooks / f"{NOTEBOOKS[stage]}.ipynb"
+
+    def table(self, stem: str, fmt: str | None = None) -> Path:
+        """A table a stage writes under tables/ (a stem of TABLE_STEMS): the path without suffix that
+        `reporting.tables.save_table` takes, or with `fmt` (one of TABLE_FORMATS) that one of its files."""
+        return _with_format(self.tables / _known_stem(stem, TABLE_STEMS, "table", "STAGE_TABLES"), fmt, TABLE_FORMATS)
+
+    def figure(self, stem: str, fmt: str | None = None) -> Path:
+        """A figure a stage writes under figures/ (a stem of FIGURE_STEMS): the path without suffix that
+        `reporting.plots.show_figure` takes, or with `fmt` (one of FIGURE_FORMATS) that one of its files."""
+        return _with_format(self.figures / _known_stem(stem, FIGURE_STEMS, "figure", "STAGE_FIGURES"), fmt,
+                            FIGURE_FORMATS)
+
+    def table_folder(self, stage: str) -> Path:
+        """The folder under tables/ that `stage` writes whole (STAGE_TABLE_FOLDERS)."""
+        return self.tables / _only_folder(STAGE_TABLE_FOLDERS, stage, "tables")
+
+    def figure_folder(self, stage: str) -> Path:
+        """The folder under figures/ that `stage` writes whole (STAGE_FIGURE_FOLDERS)."""
+        return self.figures / _only_folder(STAGE_FIGURE_FOLDERS, stage, "figures")
+
+    @property
+    def reward_episodes(self) -> Path:
+        """Every evaluation episode the `rewards` stage read (REWARD_EPISODES)."""
+        return self.tables / REWARD_EPISODES
 
     def table_files(self, stem: str) -> tuple[Path, ...]:
         """The files of one table under tables/, one per format."""
@@ -207,6 +253,12 @@ class Layout:
     @property
     def spawn(self) -> Path:
         return self.results / "spawn"
+
+    def spawn_file(self, what: str) -> Path:
+        """One of the spawn experiment's CSVs (one of SPAWN_FILES)."""
+        if what not in SPAWN_FILES:
+            raise ValueError(f"unknown spawn file {what!r}; use one of {list(SPAWN_FILES)}")
+        return self.spawn / f"{what}.csv"
 
     @property
     def value_level(self) -> Path:
@@ -279,7 +331,7 @@ class Layout:
             "uncertainty_over_time": (scores,),
             "training_and_perturbations": (checkpoints, scores),
             # also tables/spawn_uncertainty.csv where `spawn` wrote it (not a dep: a profile may have none)
-            "paper_vs_us": tuple(self.tables / f"{stem}.csv" for stem in PAPER_VS_US_READS),
+            "paper_vs_us": tuple(self.table(stem, "csv") for stem in PAPER_VS_US_READS),
             "record_example_states": (),
             "record_quickstart": (quickstart,),
             "example_states": (self.recording("example_states"),),
@@ -296,7 +348,7 @@ class Layout:
             "ensembles": (*(part.results for part in parts), scores),
         }
         writes = {  # besides the stage's tables, figures and executed notebook
-            "rewards": (self.tables / "reward_episodes.csv",),
+            "rewards": (self.reward_episodes,),
             "record_example_states": (self.recording("example_states"),),
             "record_quickstart": (self.recording("quickstart"),),
             "guard": (self.guards,),
@@ -309,7 +361,7 @@ class Layout:
         }
         command = {stage: (self.notebook(stage),) for stage in NOTEBOOKS}
         # the quickstart notebook's parameters: its agent, its recording, the folder of its figures
-        command["quickstart"] += (quickstart, self.recording("quickstart"), self.figures / "quickstart")
+        command["quickstart"] += (quickstart, self.recording("quickstart"), self.figure_folder("quickstart"))
         return {stage: StagePaths(deps=stage_deps, outs=(*writes.get(stage, ()), *self._notebook_outputs(stage)),
                                   command=command.get(stage, ()))
                 for stage, stage_deps in deps.items()}
@@ -321,3 +373,29 @@ class Layout:
         outs += [self.tables / name for name in STAGE_TABLE_FOLDERS.get(stage, ())]
         outs += [self.figures / name for name in STAGE_FIGURE_FOLDERS.get(stage, ())]
         return (*outs, self.notebook(stage)) if stage in NOTEBOOKS else tuple(outs)
+
+
+def _known_stem(stem: str, known: frozenset[str], kind: str, where: str) -> str:
+    """`stem`, once a stage is known to write it: a notebook cannot write a table or figure dvc.yaml does not list."""
+    if stem not in known:
+        raise ValueError(f"unknown {kind} {stem!r}: name it in {where} (paper_lib/pipeline/layout.py) and in its "
+                         "stage's outs in dvc.yaml")
+    return stem
+
+
+def _with_format(path: Path, fmt: str | None, formats: tuple[str, ...]) -> Path:
+    """`path` (a table's or figure's stem), or its file in format `fmt`."""
+    if fmt is None:
+        return path
+    if fmt not in formats:
+        raise ValueError(f"unknown format {fmt!r} of {path.name}; use one of {list(formats)}")
+    return path.with_name(f"{path.name}.{fmt}")
+
+
+def _only_folder(folders: dict[str, tuple[str, ...]], stage: str, under: str) -> str:
+    """The one folder under tables/ or figures/ (`under`) that `stage` writes whole."""
+    names = folders.get(stage, ())
+    if len(names) != 1:
+        raise ValueError(f"stage {stage!r} writes {len(names)} folders under {under}/, not one; stages with one: "
+                         f"{sorted(s for s, n in folders.items() if len(n) == 1)}")
+    return names[0]

@@ -40,7 +40,7 @@ from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable
                                  write_text_atomic)
 from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Layout
+from paper_lib.pipeline.layout import Layout, combination_name
 
 #: FPR values at which each ROC curve is kept (the TPR reachable at FPR <= x).
 ROC_GRID = np.linspace(0.0, 1.0, 201)
@@ -145,11 +145,27 @@ def collection_actions(dataset) -> str:
     return f"{actions} actions, {mode.get('inference')} inference"
 
 
-def _identity_error(path: Path, found: dict[str, Any], env_id: str, method: str, seed: int) -> ValueError:
-    wanted = f"{env_id} {method} seed {seed}"
-    got = " ".join(str(found.get(key)) for key in ("env", "method")) + f" seed {found.get('seed')}"
-    return ValueError(f"{path} belongs to {got}, not to {wanted} whose path it sits at: a file of another run is never "
-                      f"read as this one's; put back this run's file (`make recollect` collects it again)")
+#: The keys of a record that name what was scored: a run (env, method, seed), or an ensemble assembled from member
+#: checkpoints (env, method, members: paper_lib.experiments.ensembles).
+IDENTITY_KEYS = ("env", "method", "seed", "members")
+
+
+def run_identity(env_id: str, method: str, seed: int) -> dict[str, Any]:
+    return {"env": env_id, "method": method, "seed": seed}
+
+
+def describe_identity(identity: dict[str, Any]) -> str:
+    """'HalfCheetah-v5 masksembles seed 0', or 'Walker2d-v5 independent_ensemble members-0-1-2-3'."""
+    members = identity.get("members")
+    tail = f"seed {identity.get('seed')}" if members is None else (
+        combination_name(tuple(members)) if isinstance(members, list) else str(members))
+    return f"{identity.get('env')} {identity.get('method')} {tail}"
+
+
+def identity_error(path: Path, found: dict[str, Any], wanted: dict[str, Any]) -> ValueError:
+    return ValueError(f"{path} belongs to {describe_identity(found)}, not to {describe_identity(wanted)} whose path it "
+                      "sits at: a file of another run is never read as this one's; put back this run's file (`make "
+                      "recollect` collects it again)")
 
 
 def check_dataset_identity(metadata: dict[str, Any], path: Path, env_id: str, method: str, seed: int) -> None:
@@ -157,7 +173,7 @@ def check_dataset_identity(metadata: dict[str, Any], path: Path, env_id: str, me
     model = metadata.get("model") or {}
     found = {"env": model.get("env_id", metadata.get("env_id")), "method": model.get("method"), "seed": model.get("seed")}
     if (found["env"], found["method"], found["seed"]) != (env_id, method, seed):
-        raise _identity_error(path, found, env_id, method, seed)
+        raise identity_error(path, found, run_identity(env_id, method, seed))
 
 
 def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, method: str, seed: int) -> None:
@@ -167,7 +183,7 @@ def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, m
         if values != {value}:
             found = {k: ", ".join(map(str, sorted(set(episodes[k]), key=str))) if k in episodes else None
                      for k in ("env", "method", "seed")}
-            raise _identity_error(path, found, env_id, method, seed)
+            raise identity_error(path, found, run_identity(env_id, method, seed))
 
 
 # ----------------------------------------------------------------------------- provenance: scores <- their inputs
@@ -194,93 +210,139 @@ def provenance_inputs(cfg: RunConfig, env_id: str, method: str, seed: int) -> di
             **{name: checkpoint / name for name in CHECKPOINT_INPUTS}}
 
 
-def score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any]:
-    """What the run's scores are made from, as `provenance.json` holds it: no time and no path, so scoring the same
-    files again gives the same bytes. A missing dataset or model.zip is one error naming it."""
-    inputs = provenance_inputs(cfg, env_id, method, seed)
-    for name in ("dataset", "model.zip"):
-        if not inputs[name].is_file():
-            raise FileNotFoundError(f"{inputs[name]} is missing: the scores of {env_id} {method} seed {seed} are made "
-                                    "from it; put it back (`make recollect` collects a dataset again)")
+def _anchor(name: str) -> str:
+    """The input whose presence says whether `name` can be compared: a checkpoint's normalizer goes with its model.zip
+    (`seed0/vecnormalize.pkl` with `seed0/model.zip`, for an ensemble's members); every other input is its own."""
+    folder, sep, file = name.rpartition("/")
+    return f"{folder}{sep}{CHECKPOINT_INPUTS[0]}" if file == CHECKPOINT_INPUTS[1] else name
+
+
+def provenance_record(identity: dict[str, Any], inputs: dict[str, Path]) -> dict[str, Any]:
+    """The `provenance.json` of scores made from `inputs` (name -> file): what was scored (`identity`, IDENTITY_KEYS)
+    and the SHA-256 of each input present, by name. No time and no path, so scoring the same files again gives the
+    same bytes. A missing dataset or model.zip (a normalizer is optional) is one error naming it."""
+    for name, path in inputs.items():
+        if _anchor(name) == name and not path.is_file():
+            raise FileNotFoundError(f"{path} is missing: the scores of {describe_identity(identity)} are made from it; "
+                                    "put it back (`make recollect` collects a dataset again)")
     digests = {name: _digest(path) for name, path in inputs.items() if path.is_file()}
-    return {"format": PROVENANCE_FORMAT, "env": env_id, "method": method, "seed": seed, "sha256": digests}
+    return {"format": PROVENANCE_FORMAT, **identity, "sha256": digests}
 
 
-def _read_provenance(path: Path) -> dict[str, Any]:
+def score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any]:
+    """What the run's scores are made from, as `provenance.json` holds it (`provenance_record` of the run)."""
+    return provenance_record(run_identity(env_id, method, seed), provenance_inputs(cfg, env_id, method, seed))
+
+
+def _run_fixes(env_id: str, method: str, seed: int) -> tuple[str, str]:
+    """(how to score the run again, the command that records existing scores) for a main-matrix run."""
+    return (f"score the run again (`python -m paper_lib.pipeline.run_results score {env_id} {method} {seed}`)",
+            f"python -m paper_lib.pipeline.run_results provenance {env_id} {method} {seed}")
+
+
+def _read_provenance(path: Path, rescore: str, backfill: str) -> dict[str, Any]:
     try:
         recorded = json.loads(path.read_text())
         if not (isinstance(recorded, dict) and recorded.get("format") == PROVENANCE_FORMAT
                 and isinstance(recorded.get("sha256"), dict)):
             raise ValueError(f"not a {PROVENANCE_FORMAT} record")
     except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise ValueError(f"{path} is not a readable provenance record ({err}); score the run again, or write the "
-                         "record from its current files (`python -m paper_lib.pipeline.run_results provenance <env> "
-                         "<method> <seed>`)") from None
+        raise ValueError(f"{path} is not a readable provenance record ({err}); {rescore}, or write the record from "
+                         f"its current files (`{backfill}`)") from None
     return recorded
 
 
-def check_score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> None:
-    """Scores at a run's path must have been made from that run's current dataset and checkpoint.
+def check_provenance(folder: Path, identity: dict[str, Any], inputs: dict[str, Path], rescore: str, backfill: str,
+                     required: bool = False) -> None:
+    """Scores in `folder` must have been made from `identity`'s current `inputs` (what `provenance_record` records).
 
-    Checked where the scores folder has its `provenance.json` (scores made before it was recorded have none): the run
-    it names must be this one, and each input file present now must have the SHA-256 recorded. An input missing
-    here (a checkout without datasets) cannot be compared and is passed over.
+    The record must name `identity`, and each input present now must have the SHA-256 recorded; an input missing here
+    (a checkout without datasets) cannot be compared and is passed over (a checkpoint's files go with its model.zip).
+    A folder without its record is passed over too, unless `required`: then it is refused, naming `backfill`, the
+    command that records existing scores after checking them. `rescore` says how to make the scores again.
     """
-    folder = scores_dir(cfg, env_id, method, seed)
     path = folder / PROVENANCE_FILE
     if not path.is_file():
-        return
-    recorded = _read_provenance(path)
-    if (recorded.get("env"), recorded.get("method"), recorded.get("seed")) != (env_id, method, seed):
-        raise _identity_error(path, recorded, env_id, method, seed)
-    inputs = provenance_inputs(cfg, env_id, method, seed)
-    present = {"dataset": inputs["dataset"].is_file(),
-               **dict.fromkeys(CHECKPOINT_INPUTS, inputs["model.zip"].is_file())}  # the checkpoint as a whole
+        if not required:
+            return
+        raise ValueError(f"the scores {folder} have no {PROVENANCE_FILE}: what they were made from is not recorded, "
+                         f"so they are not read as {describe_identity(identity)}'s; record it from the current files, "
+                         f"which the command checks first (`{backfill}`), or {rescore}")
+    recorded = _read_provenance(path, rescore, backfill)
+    if any(recorded.get(key) != identity.get(key) for key in IDENTITY_KEYS):
+        raise identity_error(path, recorded, identity)
     for name, file in inputs.items():
-        if not present[name]:
+        if not inputs[_anchor(name)].is_file():
             continue
         want, now = recorded["sha256"].get(name), _digest(file) if file.is_file() else None
         if want != now:
             raise ValueError(f"the scores {folder} were made from {name} SHA-256 {_short(want)}, but {file} is now "
-                             f"{_short(now)}: they are stale or another run's; score the run again "
-                             f"(`python -m paper_lib.pipeline.run_results score {env_id} {method} {seed}`)")
+                             f"{_short(now)}: they are stale or another run's; {rescore}")
+
+
+def check_score_provenance(cfg: RunConfig, env_id: str, method: str, seed: int, *, required: bool = False,
+                           rescore: str | None = None, backfill: str | None = None) -> None:
+    """Scores at a run's path must have been made from that run's current dataset and checkpoint (`check_provenance`).
+
+    Scores made before the record existed have none: passed over here, refused where `required` (the ensembles'
+    readers), naming `backfill` (default: this module's `provenance` command). `rescore` defaults to the score stage.
+    """
+    folder = scores_dir(cfg, env_id, method, seed)
+    if not required and not (folder / PROVENANCE_FILE).is_file():
+        return  # passed over (see check_provenance) before the inputs are even looked up
+    fixes = _run_fixes(env_id, method, seed)
+    check_provenance(folder, run_identity(env_id, method, seed),
+                     provenance_inputs(cfg, env_id, method, seed), rescore or fixes[0], backfill or fixes[1], required)
 
 
 def _short(digest: str | None) -> str:
     return "none (no such file)" if digest is None else f"{digest[:12]}..."
 
 
-def check_scores_destination(folder: Path, env_id: str) -> Path:
+def check_scores_destination(folder: Path, env_id: str, names: tuple[str, ...] | None = None) -> Path:
     """The score stage replaces its folder whole: refuse a file or a link there, or a folder holding files but none
-    of a scores folder's, before any scoring (the swap would delete them)."""
+    of a scores folder's (`names`; default: a run's, `score_files` and provenance.json), before any scoring (the swap
+    would delete them)."""
     check_replaceable_dir(folder, "scores folder")
-    ours = (*score_files(env_id), PROVENANCE_FILE)
+    ours = names or (*score_files(env_id), PROVENANCE_FILE)
     if folder.is_dir() and any(folder.iterdir()) and not any((folder / name).is_file() for name in ours):
         raise DestinationError(f"scores folder {folder} holds files but none of a scores folder's ({', '.join(ours)}), "
                                "and scoring would replace it whole; move those files away (they were left as they are)")
     return folder
 
 
-def _provenance_to_record(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any] | None:
-    """The record `record_provenance` writes for one run (None: already there), after every check on the run."""
+def provenance_to_write(folder: Path, record: dict[str, Any], inputs: dict[str, Path], rescore: str,
+                        backfill: str) -> dict[str, Any] | None:
+    """A backfill's last check: `record` (from the current `inputs`) if `folder` has no record yet, None if it holds
+    the same one; a record there naming other inputs is refused, naming the one that differs (never overwritten with
+    the current ones: that would bless stale scores)."""
+    path = folder / PROVENANCE_FILE
+    if not path.is_file():
+        return record
+    if _read_provenance(path, rescore, backfill) == record:
+        return None  # already recorded: left untouched
+    identity = {key: record[key] for key in IDENTITY_KEYS if key in record}
+    check_provenance(folder, identity, inputs, rescore, backfill)  # names the input that differs
+    raise ValueError(f"{path} already records other inputs than {describe_identity(identity)}'s current files; "
+                     f"{rescore} instead (it was left as it is)")
+
+
+def provenance_to_record(cfg: RunConfig, env_id: str, method: str, seed: int, rescore: str | None = None,
+                         backfill: str | None = None) -> dict[str, Any] | None:
+    """The record `record_provenance` writes for one run (None: already there), after every check on the run;
+    `rescore` and `backfill` as in `check_score_provenance`."""
+    fixes = _run_fixes(env_id, method, seed)
+    rescore, backfill = rescore or fixes[0], backfill or fixes[1]
     folder = scores_dir(cfg, env_id, method, seed)
     if not (folder / "metrics.csv").is_file():
-        raise FileNotFoundError(f"{folder} holds no scores (no metrics.csv): score the run "
-                                f"(`python -m paper_lib.pipeline.run_results score {env_id} {method} {seed}`)")
+        raise FileNotFoundError(f"{folder} holds no scores (no metrics.csv): {rescore}")
     metrics = pd.read_csv(folder / "metrics.csv")
     check_evaluation_identity(metrics, folder / "metrics.csv", env_id, method, seed)
     provenance = score_provenance(cfg, env_id, method, seed)
-    dataset = provenance_inputs(cfg, env_id, method, seed)["dataset"]
-    with np.load(dataset, allow_pickle=False) as data:
-        check_dataset_identity(json.loads(str(data["metadata"])), dataset, env_id, method, seed)
-    path = folder / PROVENANCE_FILE
-    if path.is_file():
-        if _read_provenance(path) == provenance:
-            return None  # already recorded: left untouched
-        check_score_provenance(cfg, env_id, method, seed)  # names the input that differs
-        raise ValueError(f"{path} already records other inputs than {env_id} {method} seed {seed}'s current files; "
-                         "score the run again instead (it was left as it is)")
-    return provenance
+    inputs = provenance_inputs(cfg, env_id, method, seed)
+    with np.load(inputs["dataset"], allow_pickle=False) as data:
+        check_dataset_identity(json.loads(str(data["metadata"])), inputs["dataset"], env_id, method, seed)
+    return provenance_to_write(folder, provenance, inputs, rescore, backfill)
 
 
 def record_provenance(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> list[Path]:
@@ -292,7 +354,7 @@ def record_provenance(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> list[
     inputs is one error, and nothing is written. Returns the records written (runs already recorded are left as
     they are).
     """
-    records = {run: _provenance_to_record(cfg, *run) for run in runs}
+    records = {run: provenance_to_record(cfg, *run) for run in runs}
     return [write_json_atomic(scores_dir(cfg, *run) / PROVENANCE_FILE, record)
             for run, record in records.items() if record is not None]
 
@@ -409,7 +471,7 @@ def read_evaluation_file(path: Path, env_id: str, method: str, seed: int) -> pd.
 
 
 def read_replicates(cfg: RunConfig, run: tuple[str, str, int]) -> dict[tuple[str, str], np.ndarray]:
-    """One run's AUROC bootstrap replicates per (ood_set, measure), e.g. for `metrics.seed_cluster_ci` over seeds."""
+    """One run's AUROC bootstrap replicates per (ood_set, measure), e.g. for `statistics.seed_cluster_ci` over seeds."""
     check_score_provenance(cfg, *run)
     folder = scores_dir(cfg, *run)
     metrics, matrix = pd.read_csv(folder / "metrics.csv"), np.load(folder / "replicates.npy")
