@@ -15,7 +15,8 @@ import pandas as pd
 
 from paper_lib.measures.definitions import ALL_MEMBER_MEASURES
 from paper_lib.reporting.tables import PLUS_MINUS
-from paper_lib.scoring.statistics import cell_rng, difference_ci, seed_mean_ci, seed_mean_difference_ci, seed_means
+from paper_lib.scoring.statistics import (cell_rng, difference_ci, difference_mc_standard_error, mc_standard_error,
+                                         seed_mean_ci, seed_mean_difference_ci, seed_means)
 
 #: Names the paper's CSVs use for our Gymnasium ids.
 PAPER_ENV_NAMES = {"HalfCheetah-v5": "HalfCheetah", "Ant-v5": "Ant", "Walker2d-v5": "Walker2d", "Swimmer-v5": "Swimmer",
@@ -326,7 +327,7 @@ MEASURE_FAMILIES = {"value_std": "value", "policy_std": "policy", "policy_js": "
                     "entropy": "policy"}
 #: Whether replicate i of two measures of one run comes from the same cluster resample. It does:
 #: `scoring.ood_scores.score_run` gives every measure of an OOD set the same resampling seed (tested in
-#: tests/test_table_statistics.py on the committed replicates), so differences between measures of
+#: tests/reporting/test_table_statistics.py on the committed replicates), so differences between measures of
 #: a run are paired.
 REPLICATES_SHARE_RESAMPLES = True
 
@@ -373,6 +374,16 @@ def _seed_aurocs(metrics: pd.DataFrame, env: str, method: str, ood_set: str, mea
     return rows.set_index("seed")["auroc"].sort_index()
 
 
+def _seed_mc_se(metrics: pd.DataFrame, env: str, method: str, ood_set: str, measure: str, seeds: pd.Index) -> float:
+    """The MC standard error of the mean AUROC over `seeds` (`statistics.mc_standard_error`); NaN where the metrics
+    do not carry their scoring spread."""
+    if not {"auroc_scoring_std", "n_scoring_seeds"} <= set(metrics.columns) or len(seeds) == 0:
+        return np.nan
+    rows = metrics[(metrics["env"] == env) & (metrics["method"] == method) & (metrics["ood_set"] == ood_set)
+                   & (metrics["measure"] == measure)].set_index("seed").loc[seeds]
+    return mc_standard_error(rows["auroc_scoring_std"], rows["n_scoring_seeds"])
+
+
 def _auroc_difference(a: pd.Series, b: pd.Series, reps_a: list[np.ndarray], reps_b: list[np.ndarray],
                       rng: np.random.Generator, pairing: str, n_boot: int, level: float) -> dict[str, float]:
     low, high = difference_ci(reps_a, reps_b, rng, pairing, n_boot, level, estimates_a=a.to_numpy(),
@@ -380,12 +391,19 @@ def _auroc_difference(a: pd.Series, b: pd.Series, reps_a: list[np.ndarray], reps
     return {"difference": float(a.mean() - b.mean()), "ci_low": low, "ci_high": high}
 
 
+def _mc_errors(se_a: float, se_b: float, a: str, b: str) -> dict[str, float]:
+    """The `<column>_mc_se` columns of a difference row (`reporting.tables.save_table` prints each column to the
+    digits its MC noise supports)."""
+    return {f"{a}_mc_se": se_a, f"{b}_mc_se": se_b, "difference_mc_se": difference_mc_standard_error(se_a, se_b)}
+
+
 #: The columns of `auroc_vs_detectors` and `auroc_members_vs_baseline` (also of an empty result).
 DETECTOR_DIFFERENCE_COLUMNS = ["env", "ood_set", "method", "measure", "auroc", "detector", "detector_auroc",
-                               "difference", "ci_low", "ci_high", "pairing", "n_seeds"]
+                               "difference", "ci_low", "ci_high", "pairing", "n_seeds", "auroc_mc_se",
+                               "detector_auroc_mc_se", "difference_mc_se"]
 BASELINE_DIFFERENCE_COLUMNS = ["env", "ood_set", "method", "family", "measure", "auroc", "baseline_detector",
                                "baseline_auroc", "difference", "ci_low", "ci_high", "pairing", "n_seeds",
-                               "baseline_seeds"]
+                               "baseline_seeds", "auroc_mc_se", "baseline_auroc_mc_se", "difference_mc_se"]
 
 
 def auroc_vs_detectors(metrics: pd.DataFrame, replicates: Replicates, methods: list[str], n_boot: int, seed: int = 0,
@@ -412,7 +430,9 @@ def auroc_vs_detectors(metrics: pd.DataFrame, replicates: Replicates, methods: l
         rows.append({"env": env, "ood_set": ood_set, "method": method, "measure": measure, "auroc": a.mean(),
                      "detector": detector, "detector_auroc": b.mean(),
                      **_auroc_difference(a, b, reps_a, reps_b, rng, pairing, n_boot, level),
-                     "pairing": "paired" if pairing == "paired" else "unpaired", "n_seeds": len(seeds)})
+                     "pairing": "paired" if pairing == "paired" else "unpaired", "n_seeds": len(seeds),
+                     **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, seeds),
+                                  _seed_mc_se(metrics, env, method, ood_set, detector, seeds), "auroc", "detector_auroc")})
     return _sorted_auroc_rows(pd.DataFrame(rows, columns=DETECTOR_DIFFERENCE_COLUMNS), methods,
                               ["env", "ood_set", "method", "measure"])
 
@@ -455,14 +475,17 @@ def auroc_members_vs_baseline(metrics: pd.DataFrame, replicates: Replicates, met
             rows.append({"env": env, "ood_set": ood_set, "method": method, "family": family, "measure": measure,
                          "auroc": a.mean(), "baseline_detector": detector, "baseline_auroc": b.mean(),
                          **_auroc_difference(a, b, reps_a, reps_b, rng, "unpaired", n_boot, level),
-                         "pairing": "unpaired", "n_seeds": len(a), "baseline_seeds": len(b)})
+                         "pairing": "unpaired", "n_seeds": len(a), "baseline_seeds": len(b),
+                         **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, a.index),
+                                      _seed_mc_se(metrics, env, "baseline", ood_set, detector, b.index),
+                                      "auroc", "baseline_auroc")})
     return _sorted_auroc_rows(pd.DataFrame(rows, columns=BASELINE_DIFFERENCE_COLUMNS), methods,
                               ["env", "ood_set", "method", "family"])
 
 
 #: The columns of `auroc_between_methods` (also of an empty result).
 PAIRWISE_COLUMNS = ["env", "ood_set", "measure", "method", "versus", "auroc", "versus_auroc", "difference", "ci_low",
-                    "ci_high", "pairing", "n_seeds"]
+                    "ci_high", "pairing", "n_seeds", "auroc_mc_se", "versus_auroc_mc_se", "difference_mc_se"]
 
 
 def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: list[tuple[str, str]],
@@ -490,7 +513,10 @@ def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: 
                 rows.append({"env": env, "ood_set": ood_set, "measure": measure, "method": method, "versus": versus,
                              "auroc": a.mean(), "versus_auroc": b.mean(),
                              **_auroc_difference(a, b, reps_a, reps_b, rng, "seeds", n_boot, level),
-                             "pairing": "seeds", "n_seeds": len(seeds)})
+                             "pairing": "seeds", "n_seeds": len(seeds),
+                             **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, seeds),
+                                          _seed_mc_se(metrics, env, versus, ood_set, measure, seeds),
+                                          "auroc", "versus_auroc")})
     return pd.DataFrame(rows, columns=PAIRWISE_COLUMNS)
 
 

@@ -24,10 +24,14 @@ ONE_SEED_NOTE = (f"{ONE_SEED_MARK} one training seed: the interval covers that o
 #: The Monte Carlo standard error at which an estimate's last printed decimal is sampling noise (issue 36): an
 #: interval cell whose MC standard error is at least MC_SE_LIMIT shows one decimal fewer (0.005 with "%.3f").
 MC_SE_LIMIT = 0.005
-MC_DIGITS_NOTE = ("Cells printed with one decimal fewer are MC Dropout/DropConnect cells whose Monte Carlo standard "
-                  f"error is {MC_SE_LIMIT} or more (the AUROC's std over the scoring seeds, ddof=1, / sqrt(scoring "
-                  "seeds x training seeds)): their next digit would be the sampling noise of the uncertainty estimate, "
-                  "not a property of the agent")
+#: A column named `<column>` + MC_SE_SUFFIX holds `<column>`'s MC standard error: the CSV keeps it, Markdown and
+#: LaTeX show `<column>` to the digits it supports and leave the error column out.
+MC_SE_SUFFIX = "_mc_se"
+MC_DIGITS_NOTE = ("Numbers printed with one decimal fewer have a Monte Carlo standard error of "
+                  f"{MC_SE_LIMIT} or more (MC Dropout/DropConnect and the feature detectors on their members: the "
+                  "AUROC's std over the scoring seeds, ddof=1, / sqrt(scoring seeds x training seeds); a difference: "
+                  "both sides' errors combined): their next digit would be the sampling noise of the uncertainty "
+                  "estimate, not a property of the agent")
 
 
 def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
@@ -121,8 +125,11 @@ def mc_standard_error(df: pd.DataFrame, estimate: str, seeds: str | None = "n_se
     error is s/sqrt(m-1) and the cell's, its runs' errors being independent, s/sqrt((m-1)*n). (The mean of the
     runs' s stands in for their root mean square, a little lower where runs' spreads differ.) One scoring seed
     with no spread (a deterministic method) has error 0; one scoring seed of a stochastic method has an unknown
-    error (NaN), and its cell keeps its digits.
+    error (NaN), and its cell keeps its digits. A frame that carries the error itself, as ``<estimate>_mc_se``
+    (`paper_tables`' difference tables, from each run's spread: `statistics.mc_standard_error`), gives it as is.
     """
+    if f"{estimate}{MC_SE_SUFFIX}" in df.columns:
+        return pd.to_numeric(df[f"{estimate}{MC_SE_SUFFIX}"], errors="coerce").astype(float)
     spread = f"{estimate}_scoring_std"
     if spread not in df.columns or "n_scoring_seeds" not in df.columns:
         return None
@@ -202,6 +209,20 @@ def _with_intervals(flat: pd.DataFrame, intervals: dict[str, tuple[str, str]], s
     return shown, marked, shortened
 
 
+def _mc_plain_columns(display: pd.DataFrame, flat: pd.DataFrame, float_format: str) -> tuple[pd.DataFrame, bool]:
+    """``display`` without its MC error columns, each plain number column that has one printed to the decimals its
+    error supports (`mc_decimals`); and whether any cell lost a decimal."""
+    errors = [c for c in display.columns if c.endswith(MC_SE_SUFFIX)]
+    shown, shortened = display.drop(columns=errors), False
+    for column in (c[: -len(MC_SE_SUFFIX)] for c in errors):
+        if column not in shown.columns or not pd.api.types.is_float_dtype(shown[column]):
+            continue  # an interval column is already a cell (`_with_intervals` used the error)
+        decimals = mc_decimals(flat[f"{column}{MC_SE_SUFFIX}"], float_format)
+        shortened |= bool((decimals < _decimals(float_format)).any())
+        shown[column] = ["NaN" if pd.isna(x) else f"{x:.{d}f}" for x, d in zip(shown[column], decimals)]
+    return shown, shortened
+
+
 def save_table(
     df: pd.DataFrame,
     stem: str | os.PathLike[str],
@@ -238,6 +259,8 @@ def save_table(
     flat.columns = [str(c) for c in flat.columns]
     display, marked, shortened = (_with_intervals(flat, intervals, seeds, float_format) if intervals
                                   else (flat, False, False))
+    display, plain_shortened = _mc_plain_columns(display, flat, float_format)
+    shortened |= plain_shortened
     if marked:
         caption = f"{caption.strip()} {ONE_SEED_NOTE}."
     if shortened:

@@ -13,7 +13,7 @@ apart (rliable's stratified bootstrap, `reporting.aggregates`). `cell_rng` seeds
 Seeds, then clusters. A cell that pools training seeds resamples seeds, then clusters within each
 (`seed_cluster_replicates`), and its interval (`seed_cluster_ci`) is never narrower than Student's t interval over
 the seed estimates (`t_interval`): with 3 seeds, a percentile bootstrap spans about their min-max and covers far
-less than 95% (tests/test_statistics.py simulates it). The same two levels give the reward tables' intervals
+less than 95% (tests/scoring/test_statistics.py simulates it). The same two levels give the reward tables' intervals
 (`seed_mean_ci`: `mean_replicates` of each seed's episodes) and the intervals of differences between methods or
 measures (`difference_ci`, `seed_mean_difference_ci`; paired where both sides share their resamples, at least
 Welch's interval where unpaired).
@@ -344,3 +344,27 @@ def seed_mean_std(df: pd.DataFrame, keys: list[str], value: str, seed: str = "se
     out = per_seed.groupby(keys)[value].agg(mean="mean", std="std", n_seeds="count").reset_index()
     rows = df.groupby(keys)[value].agg(row_std="std", n_rows="count").reset_index()
     return out.merge(rows, on=keys)
+
+
+def mc_standard_error(scoring_std: ArrayLike, n_scoring_seeds: ArrayLike) -> float:
+    """The Monte Carlo standard error of a mean over runs of each run's mean over its scoring seeds.
+
+    A stochastic method's (MC Dropout / DropConnect) run estimate is the mean over m scoring seeds, whose spread s
+    each run's metrics.csv keeps (`auroc_scoring_std`, the population std, ddof=0): that run's error is
+    s / sqrt(m - 1), and the mean of n runs, their draws being independent, has sqrt(sum of their squares) / n. A
+    run scored once with no spread (a deterministic method or detector) adds 0; a stochastic run scored once has an
+    unknown error (NaN), and so has the mean.
+    """
+    s = np.asarray(scoring_std, dtype=float)
+    m = np.asarray(n_scoring_seeds, dtype=float)
+    if s.shape != m.shape or s.size == 0:
+        raise ValueError(f"mc_standard_error needs one scoring std and one scoring-seed count per run, got {s.shape} "
+                         f"and {m.shape}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_run = np.where(m > 1, s / np.sqrt(m - 1), np.where(s == 0, 0.0, np.nan))
+    return float(np.sqrt(np.sum(per_run**2)) / s.size)
+
+
+def difference_mc_standard_error(a: float, b: float) -> float:
+    """The MC standard error of a difference of two estimates, their MC draws taken as independent."""
+    return float(np.hypot(a, b))
