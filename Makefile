@@ -70,15 +70,16 @@ lab: $(STAMP)
 site: $(STAMP)
 	$(WITH_VENV) $(BIN)/python scripts/build_site.py
 
-# tests/test_lab.py and tests/test_site.py drive Debian's chromium through chromedriver (Selenium never downloads a
-# browser). Installed where missing, as root with apt-get (CI); elsewhere those tests skip with this advice.
+# tests/project/test_lab.py and tests/project/test_site.py drive Debian's chromium through chromedriver (Selenium
+# never downloads a browser). Installed where missing, as root with apt-get (CI); elsewhere those tests skip with
+# this advice.
 browser-deps:
 	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then \
 		:; \
 	elif command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
 			chromium chromium-driver fonts-liberation \
-		|| echo "browser-deps: apt-get could not install chromium; tests/test_lab.py and tests/test_site.py will fail"; \
+		|| echo "browser-deps: apt-get could not install chromium; tests/project/test_lab.py and test_site.py will fail"; \
 	else \
 		echo "browser-deps: needs apt-get and root; install chromium and chromium-driver (Debian) yourself"; \
 	fi

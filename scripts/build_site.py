@@ -229,7 +229,7 @@ def site_links(text: str, doc: str, sources: set[str], profile: str, root: Path 
     A link to another page of the site stays. One to a committed executed notebook
     (`results/<profile>/notebooks/X.ipynb`) goes to that notebook's page. One to any other file that exists in the
     repository (code, a CSV, a folder) keeps its text and names the path, since the site holds no copy of it. A
-    link to nothing stays as written, so Sphinx reports it (tests/test_site.py fails on any warning).
+    link to nothing stays as written, so Sphinx reports it (tests/project/test_site.py fails on any warning).
     """
     here = posixpath.dirname(doc)
     fenced = False

@@ -1,7 +1,7 @@
 """Open the notebooks in JupyterLab on the project's .venv kernel (`make lab`).
 
     .venv/bin/python scripts/lab.py                      # port 8888 (or another free one), a fresh token
-    .venv/bin/python scripts/lab.py --port 0 --token T   # any free port (tests/test_lab.py)
+    .venv/bin/python scripts/lab.py --port 0 --token T   # any free port (tests/project/test_lab.py)
 
 Why a launcher rather than plain `jupyter lab`: every notebook reads its inputs by paths relative to the repository
 root (`params.yaml`, `results/<profile>/...`, as the DVC stages run them), while Jupyter starts a kernel in the

@@ -1,6 +1,6 @@
 """FROZEN COPY of paper_lib/methods/layers.py as it trained the committed runs (commit 696b4c2).
 
-Do not edit: tests/test_training_numerics.py trains with these layers and with the library's,
+Do not edit: tests/methods/test_training_numerics.py trains with these layers and with the library's,
 and requires bit-identical parameters, so any change to the training path shows up there.
 
 Member-batched layers: every tensor here is member-major, shape (k, n, ...).

@@ -1,6 +1,8 @@
-"""Shared test settings: one torch thread (CI has 2 cores), and small real agents."""
+"""Shared test settings for every tests/<layer>/ folder: one torch thread (CI has 2 cores), small real agents,
+and the `slow` marker."""
 
 import os
+from pathlib import Path
 
 import pytest
 import torch as th
@@ -19,6 +21,7 @@ def tiny_overrides() -> dict:
 
 #: Modules whose tests train, run notebooks or the pipeline, or replay episodes (a minute and more each):
 #: `pytest -m "not slow"` (the inner loop, docs/pipeline.md) leaves them to the whole suite, which CI runs.
+#: Named by file name without its tests/<layer>/ folder (basenames are unique across tests/).
 SLOW_MODULES = {"test_pipeline", "test_faults", "test_guard", "test_study", "test_notebooks", "test_independent_ensembles",
                 "test_bench", "test_spawn", "test_value_level", "test_door_checks_entry", "test_train_queue",
                 "test_gpu_runs", "test_atari_head", "test_ood_atari", "test_evaluate_agent", "test_collect",
@@ -27,6 +30,9 @@ SLOW_MODULES = {"test_pipeline", "test_faults", "test_guard", "test_study", "tes
 
 
 def pytest_collection_modifyitems(config, items) -> None:
+    stale = SLOW_MODULES - {path.stem for path in Path(__file__).parent.glob("*/test_*.py")}
+    if stale:  # a renamed or deleted module would otherwise drop out of the slow set unnoticed
+        raise pytest.UsageError(f"tests/conftest.py SLOW_MODULES names no test file: {sorted(stale)}")
     for item in items:
         if item.module.__name__.rsplit(".", 1)[-1] in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)

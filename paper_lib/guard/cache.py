@@ -27,7 +27,7 @@ from paper_lib.ood.collect import ActionMode
 
 TABLES = ("episodes", "returns", "traces")
 FOLDER = "experiment"
-#: Every paper_lib module a guard experiment runs (`tests/test_guard.py` checks a real run imports no other).
+#: Every paper_lib module a guard experiment runs (`tests/guard/test_guard.py` checks a real run imports no other).
 SOURCE_MODULES = tuple(f"paper_lib{suffix}" for suffix in (
     "", ".common", ".common.io", ".common.provenance", ".methods", ".methods.buffer", ".methods.groups",
     ".methods.independent", ".methods.inference", ".methods.layers", ".methods.networks", ".methods.per_state",

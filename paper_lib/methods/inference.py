@@ -19,7 +19,7 @@ Numbers: an MLP on fewer than COMPACT_MIN_STATES states gives the reference's bi
 tensor ops on the same shapes); Masksembles on kept units and the CNN agree up to float
 rounding (~1e-7 relative). `members` falls back to the reference modules
 (`reference_members`) with autograd on or for a network this path does not know.
-tests/test_fast_inference.py holds both equal.
+tests/methods/test_fast_inference.py holds both equal.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Every path below results/<profile>/ is built here; `RunConfig`, the per-run stages, the status, the
 experiments and the study ask this module for theirs. `Layout.stage_paths` says, stage by stage, which
-of them dvc.yaml names, and tests/test_pipeline_layout.py checks dvc.yaml (expanded over runs.yaml) names
+of them dvc.yaml names, and tests/pipeline/test_pipeline_layout.py checks dvc.yaml (expanded over runs.yaml) names
 exactly those: a path renamed here or there and not in both places fails that test.
 
     results/<profile>/                                 Layout(root / "results" / profile)

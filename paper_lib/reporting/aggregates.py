@@ -7,7 +7,7 @@ resamples the runs of each env apart (with replacement), so every env keeps its 
 percentile intervals live in `scoring.statistics`; here the aggregates and their tables). rliable itself does not
 run here: its newest release (1.2.0) needs arch < 8, whose 7.x fails to import under the lock's pandas 3 and whose
 8.0 changed the bootstrap API rliable calls; these are its definitions, written out and tested against hand-made
-cases (tests/test_aggregates.py).
+cases (tests/reporting/test_aggregates.py).
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Makes building an environment impossible in every Python process that has this folder on PYTHONPATH.
 
-tests/test_pipeline.py rebuilds the `tiny` profile's tables and figures with it: DVC, the stage commands and the
-notebooks' kernels all start Python, and each loads this file. Rebuilding must only read committed files (MuJoCo's
-last float bits differ across CPUs; a simulated number would move), so gymnasium's `make`, MuJoCo's model loading
-and compiling, and the ALE's Atari env raise here. The patches apply when their package is first imported, so a
-process that never imports them pays nothing.
+tests/pipeline/test_pipeline.py rebuilds the `tiny` profile's tables and figures with it: DVC, the stage commands
+and the notebooks' kernels all start Python, and each loads this file. Rebuilding must only read committed files
+(MuJoCo's last float bits differ across CPUs; a simulated number would move), so gymnasium's `make`, MuJoCo's model
+loading and compiling, and the ALE's Atari env raise here. The patches apply when their package is first imported,
+so a process that never imports them pays nothing.
 """
 
 from __future__ import annotations

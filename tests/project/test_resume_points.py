@@ -1,0 +1,64 @@
+"""scripts/resume_points.sh: a run longer than one machine's session survives it through the repository."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "resume_points.sh"
+RUN = "recipe_probes/Ant-v5/baseline-zoo-n4"
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["bash", str(SCRIPT), *args], capture_output=True, text=True)
+
+
+def _resume_point(tree: Path, seed: int, content: bytes) -> Path:
+    folder = tree / "results" / RUN / f".seed{seed}.resume"
+    folder.mkdir(parents=True)
+    for name in ("model.zip", "state.pkl", "vecnormalize.pkl"):
+        (folder / name).write_bytes(content + name.encode())
+    return folder
+
+
+def test_save_then_restore_on_another_machine(tmp_path):
+    old_machine, repo, new_machine = tmp_path / "frozen", tmp_path / "repo", tmp_path / "next"
+    for root in (old_machine, repo, new_machine):
+        (root / "results").mkdir(parents=True)
+    _resume_point(old_machine, 0, b"in progress")
+    landed = _resume_point(old_machine, 1, b"finished")
+    (landed.parent / "seed1").mkdir()
+    (landed.parent / "seed1" / "model.zip").write_bytes(b"checkpoint")  # seed 1 has landed: nothing to carry
+    stale = repo / "results" / "resume_points" / RUN / "seed1"
+    stale.mkdir(parents=True)
+    (stale / "state.pkl").write_bytes(b"old")
+
+    saved = _run("save", str(old_machine), str(repo))
+    assert saved.returncode == 0, saved.stderr
+    store = repo / "results" / "resume_points" / RUN
+    assert sorted(p.name for p in (store / "seed0").iterdir()) == ["model.zip", "state.pkl", "vecnormalize.pkl"]
+    assert (store / "seed0" / "state.pkl").read_bytes() == b"in progressstate.pkl"
+    assert not stale.exists()  # the landed run's copy is dropped
+
+    restored = _run("restore", str(repo), str(new_machine))
+    assert restored.returncode == 0, restored.stderr
+    back = new_machine / "results" / RUN / ".seed0.resume"
+    assert (back / "model.zip").read_bytes() == b"in progressmodel.zip"
+
+
+def test_keep_landed_carries_a_finished_run_to_extend_later(tmp_path):
+    tree, repo = tmp_path / "frozen", tmp_path / "repo"
+    (repo / "results").mkdir(parents=True)
+    landed = _resume_point(tree, 1, b"finished")
+    (landed.parent / "seed1").mkdir()
+    (landed.parent / "seed1" / "model.zip").write_bytes(b"checkpoint")
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    assert not (repo / "results" / "resume_points" / RUN / "seed1").exists()
+    assert _run("save", "--keep-landed", str(tree), str(repo)).returncode == 0
+    assert (repo / "results" / "resume_points" / RUN / "seed1" / "state.pkl").read_bytes() == b"finishedstate.pkl"
+
+
+def test_a_tree_without_results_is_one_clear_error(tmp_path):
+    done = _run("save", str(tmp_path), str(tmp_path))
+    assert done.returncode == 2 and "has no results/ folder" in done.stderr
+    assert _run("bogus").returncode == 2

@@ -1,0 +1,83 @@
+"""The verdict rules of the paper's claims, on small tables whose answers are known by hand.
+
+One rule shape for every claim that rests on an interval (tests/reporting/test_verdicts.py checks it case by case):
+holds when the interval excludes failure, does not hold when it excludes success, inconclusive otherwise.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from paper_lib.reporting.claims import AUROC_ORDER_PAIRS, CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, paper_claims
+
+
+def _vs_baseline(ci_low: float, ci_high: float, baseline: float = 100.0, n_seeds: int = 3) -> pd.DataFrame:
+    return pd.DataFrame([{"env": "Swimmer-v5", "method": "masksembles", "inference": "combined",
+                          "sampled difference": (ci_low + ci_high) / 2, "sampled ci_low": ci_low,
+                          "sampled ci_high": ci_high, "sampled baseline": baseline, "deterministic difference": 5.0,
+                          "deterministic ci_low": 1.0, "deterministic ci_high": 9.0, "n_seeds": n_seeds}])
+
+
+def _pairwise(intervals: dict[str, tuple[float, float]], n_seeds: int = 3) -> pd.DataFrame:
+    """Every AUROC-order pair with the same interval per measure."""
+    return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "measure": measure, "method": a, "versus": b,
+                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "n_seeds": n_seeds}
+                         for measure, (lo, hi) in intervals.items() for a, b in AUROC_ORDER_PAIRS])
+
+
+def _metrics(aurocs: dict[tuple[str, str], float]) -> pd.DataFrame:
+    return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "method": m, "measure": s, "auroc": a}
+                         for (m, s), a in aurocs.items()])
+
+
+def _versus(ci: list[tuple[float, float]], n_seeds: int = 3) -> pd.DataFrame:
+    return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "method": "masksembles", "measure": f"m{i}",
+                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "detector": "knn_obs",
+                          "n_seeds": n_seeds} for i, (lo, hi) in enumerate(ci)])
+
+
+def _verdicts(table: pd.DataFrame) -> dict[str, str]:
+    return {key: table[table.claim == text].verdict.tolist()[0] for key, text in CLAIMS.items()}
+
+
+JS = {("masksembles", "policy_std"): 0.7, ("ensemble", "policy_std"): 0.5, ("mc_dropout", "policy_std"): 0.6,
+      ("masksembles", "policy_js"): 0.71, ("ensemble", "policy_js"): 0.52, ("mc_dropout", "policy_js"): 0.61}
+SPLIT = {"value_std": (0.05, 0.2), "policy_std": (-0.3, -0.1)}
+
+
+def test_each_rule_on_a_case_known_by_hand():
+    spawn = pd.DataFrame([{"env": "Ant-v5", "method": m, "value_std_spawn_ratio": r, "value_std_airborne_auroc": a}
+                          for m, r, a in [("masksembles", 1.5, 0.7), ("ensemble", 1.2, 0.6), ("mc_dropout", 0.9, 0.7)]])
+    verdicts = _verdicts(paper_claims(_vs_baseline(-8.0, 5.0), _pairwise(SPLIT), _metrics(JS),
+                                      _versus([(0.01, 0.05), (-0.01, 0.02)]), spawn))
+    assert verdicts == {"masksembles_reward": HOLDS,  # the worst loss the interval allows, 8, is within 10% of 100
+                        "auroc_order": MIXED,  # value std: all four pairs above 0; policy std: below
+                        "levitation": HOLDS,  # 2 of 3 methods on both counts
+                        "js_like_std": HOLDS,  # the same order of the three methods
+                        "members_vs_detectors": HOLDS}  # one cell above 0
+
+
+def test_the_opposite_cases_and_what_cannot_be_tested_yet():
+    reversed_js = {**JS, ("masksembles", "policy_js"): 0.5, ("ensemble", "policy_js"): 0.7}
+    behind = {"value_std": (-0.2, -0.05), "policy_std": (-0.3, -0.1)}
+    verdicts = _verdicts(paper_claims(_vs_baseline(-40.0, -15.0), _pairwise(behind), _metrics(reversed_js),
+                                      _versus([(-0.05, -0.01)]), None))
+    assert verdicts["masksembles_reward"] == FAILS and verdicts["members_vs_detectors"] == FAILS
+    assert verdicts["auroc_order"] == FAILS
+    assert verdicts["levitation"] == UNTESTED and verdicts["js_like_std"] == FAILS  # rho = -0.5
+    no_mc = _pairwise(SPLIT).query("versus != 'mc_dropconnect'")
+    verdicts = _verdicts(paper_claims(_vs_baseline(-5.0, 5.0), no_mc, _metrics({("masksembles", "value_std"): 0.5}), _versus([(0.0, 0.1)]), None))
+    assert verdicts["auroc_order"] == UNTESTED and verdicts["js_like_std"] == UNTESTED
+
+
+def test_absence_of_evidence_is_not_agreement():
+    """An interval from half the baseline's reward lost to a small gain, or one that straddles 0, decides nothing."""
+    verdicts = _verdicts(paper_claims(_vs_baseline(-50.0, 5.0), _pairwise({"value_std": (-0.05, 0.2),
+                                                                            "policy_std": (-0.05, 0.2)}),
+                                      _metrics(JS), _versus([(-0.1, 0.1)]), None))
+    assert verdicts["masksembles_reward"] == verdicts["auroc_order"] == "inconclusive (3 seeds)"
+    assert verdicts["members_vs_detectors"] == "inconclusive (3 seeds)"
+    one_seed = _verdicts(paper_claims(_vs_baseline(1.0, 5.0, n_seeds=1), _pairwise(SPLIT, n_seeds=1), _metrics(JS),
+                                      _versus([(0.01, 0.05)], n_seeds=1), None))
+    assert one_seed["masksembles_reward"] == one_seed["auroc_order"] == one_seed["members_vs_detectors"] \
+        == "inconclusive (1 seed)"
