@@ -64,7 +64,6 @@ from paper_lib.ood.mujoco import (
     make_perturbed_env,
     sample_stable_config,
 )
-from paper_lib.measures.estimates import uncertainty
 from paper_lib.ood.pixels import PIXEL_PERTURBATIONS, noise_ood, perturb_pixels
 
 #: The main text's OOD protocol (the default): ``collect_mujoco_ood_states(..., **MAIN_TEXT_PROTOCOL)``.
@@ -130,7 +129,7 @@ class ActionMode:
 # ----------------------------------------------------------------------------- the agent
 
 
-def _policy_of(model_or_policy: BaseAlgorithm | BasePolicy) -> BasePolicy:
+def policy_of(model_or_policy: BaseAlgorithm | BasePolicy) -> BasePolicy:
     if isinstance(model_or_policy, BaseAlgorithm):
         return model_or_policy.policy
     if isinstance(model_or_policy, BasePolicy):
@@ -138,7 +137,7 @@ def _policy_of(model_or_policy: BaseAlgorithm | BasePolicy) -> BasePolicy:
     raise TypeError(f"expected an SB3 model or policy, got {type(model_or_policy).__name__}.")
 
 
-def _needs_normalization(model_or_policy: BaseAlgorithm | BasePolicy) -> bool:
+def needs_normalization(model_or_policy: BaseAlgorithm | BasePolicy) -> bool:
     """Whether the model says it was trained on VecNormalize-d observations."""
     if not isinstance(model_or_policy, BaseAlgorithm):
         return False
@@ -162,7 +161,7 @@ class _Actor:
 def _prepare(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int, action_mode: ActionMode, seed: int,
              max_episode_steps: int, skip_first: int, vecnormalize: VecNormalize | None) -> tuple[_Actor, str]:
     """Check every common argument where it enters; apply the action mode. Returns (actor, policy kind)."""
-    policy = _policy_of(model)
+    policy = policy_of(model)
     if isinstance(n_states, bool) or not isinstance(n_states, (int, np.integer)) or n_states <= 0:
         raise ValueError(f"n_states={n_states!r}: need a positive number of states (the paper uses 2000).")
     if not isinstance(action_mode, ActionMode):
@@ -182,7 +181,7 @@ def _prepare(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int, acti
             raise TypeError(f"vecnormalize must be the VecNormalize the model was trained with, "
                             f"got {type(vecnormalize).__name__}.")
         vecnormalize.training = False  # an evaluation object: its running statistics must not move
-    elif _needs_normalization(model):
+    elif needs_normalization(model):
         raise ValueError("the model was trained on VecNormalize-d observations: pass vecnormalize= the "
                          "VecNormalize saved with it (VecNormalize.load(path, venv)), or "
                          "model.get_vec_normalize_env() for a model still in memory.")
@@ -190,7 +189,7 @@ def _prepare(model: BaseAlgorithm | BasePolicy, env_id: str, n_states: int, acti
     return _Actor(policy, action_mode, vecnormalize), kind
 
 
-def _fits(shape: tuple[int, ...], policy: BasePolicy) -> bool:
+def fits_policy(shape: tuple[int, ...], policy: BasePolicy) -> bool:
     """Whether the policy takes states of ``shape``; SB3 transposes channel-last images itself."""
     space = policy.observation_space
     if shape == space.shape:
@@ -199,7 +198,7 @@ def _fits(shape: tuple[int, ...], policy: BasePolicy) -> bool:
 
 
 def _check_obs_space(venv: VecEnv, policy: BasePolicy) -> None:
-    if not _fits(venv.observation_space.shape, policy):
+    if not fits_policy(venv.observation_space.shape, policy):
         raise ValueError(f"the env gives observations of shape {venv.observation_space.shape} but the policy "
                          f"takes {policy.observation_space.shape}: use the env the model was trained on.")
 
@@ -632,35 +631,3 @@ def noise_ood_states(id_dataset: StateDataset, rng: np.random.Generator, magnitu
         policy_obs = vecnormalize.normalize_obs(states)
     return _derived(id_dataset, states, "noise", policy_obs, kind="noise", derived_from="id",
                     noise_magnitude=float(magnitude))
-
-
-# ------------------------------------------------------------------------------------ scoring
-
-
-def score_dataset(model_or_policy: BaseAlgorithm | BasePolicy, dataset: StateDataset,
-                  batch_size: int = 1024, seed: int | None = 0) -> pd.DataFrame:
-    """One row per state: every uncertainty measure the policy has, plus label and provenance.
-
-    Scores are computed on ``policy_obs`` when the dataset has them (VecNormalize), else on
-    the raw states, i.e. always on what the policy saw while acting. ``seed`` fixes the MC
-    methods' per-state samples (None: torch's global RNG), so scoring is repeatable.
-    """
-    policy = _policy_of(model_or_policy)
-    if not isinstance(dataset, StateDataset):
-        raise TypeError(f"dataset must be a StateDataset, got {type(dataset).__name__}.")
-    if len(dataset) == 0:
-        raise ValueError("the dataset is empty: nothing to score.")
-    if dataset.policy_obs is None and _needs_normalization(model_or_policy):
-        raise ValueError("the model was trained on VecNormalize-d observations but the dataset has no policy_obs: "
-                         "collect it with vecnormalize=.")
-    obs = dataset.states if dataset.policy_obs is None else dataset.policy_obs
-    if not _fits(obs.shape[1:], policy):
-        raise ValueError(f"the dataset's states have shape {obs.shape[1:]} but the policy takes "
-                         f"{policy.observation_space.shape}: score with the model the states were collected for.")
-    frame = pd.DataFrame(uncertainty(policy, obs, batch_size=batch_size, seed=seed))
-    frame["label"] = dataset.labels
-    frame["source"] = dataset.source
-    frame["episode"] = dataset.episode
-    frame["step"] = dataset.step
-    frame["config_index"] = dataset.config_index
-    return frame

@@ -111,7 +111,7 @@ def first_episodes(model, dataset, max_states: int = OVER_TIME_STATES) -> pd.Dat
     label are whole episodes (ID) or configurations (OOD) one after the other, as the paper's
     over-time figures concatenate them.
     """
-    from paper_lib.ood.collect import score_dataset
+    from paper_lib.scoring.ood_scores import score_dataset
 
     parts = []
     for label, phase in ((0, "id"), (1, "ood")):

@@ -19,13 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
-from paper_lib.measures.estimates import policy_features
+from paper_lib.measures.estimates import policy_features, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
-from paper_lib.ood.collect import noise_ood_states, score_dataset
+from paper_lib.ood.collect import fits_policy, needs_normalization, noise_ood_states, policy_of
 from paper_lib.ood.datasets import NO_CONFIG, StateDataset, check_labels
 from paper_lib.scoring.metrics import measure_metrics, roc_points
 from paper_lib.scoring.statistics import seed_cluster_ci
@@ -215,3 +216,32 @@ def summarize_seeds(metrics: pd.DataFrame, replicates: pd.DataFrame, rng: np.ran
                    n_ood_clusters=frame["n_ood_clusters"].mean())
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def score_dataset(model_or_policy: BaseAlgorithm | BasePolicy, dataset: StateDataset,
+                  batch_size: int = 1024, seed: int | None = 0) -> pd.DataFrame:
+    """One row per state: every uncertainty measure the policy has, plus label and provenance.
+
+    Scores are computed on ``policy_obs`` when the dataset has them (VecNormalize), else on
+    the raw states, i.e. always on what the policy saw while acting. ``seed`` fixes the MC
+    methods' per-state samples (None: torch's global RNG), so scoring is repeatable.
+    """
+    policy = policy_of(model_or_policy)
+    if not isinstance(dataset, StateDataset):
+        raise TypeError(f"dataset must be a StateDataset, got {type(dataset).__name__}.")
+    if len(dataset) == 0:
+        raise ValueError("the dataset is empty: nothing to score.")
+    if dataset.policy_obs is None and needs_normalization(model_or_policy):
+        raise ValueError("the model was trained on VecNormalize-d observations but the dataset has no policy_obs: "
+                         "collect it with vecnormalize=.")
+    obs = dataset.states if dataset.policy_obs is None else dataset.policy_obs
+    if not fits_policy(obs.shape[1:], policy):
+        raise ValueError(f"the dataset's states have shape {obs.shape[1:]} but the policy takes "
+                         f"{policy.observation_space.shape}: score with the model the states were collected for.")
+    frame = pd.DataFrame(uncertainty(policy, obs, batch_size=batch_size, seed=seed))
+    frame["label"] = dataset.labels
+    frame["source"] = dataset.source
+    frame["episode"] = dataset.episode
+    frame["step"] = dataset.step
+    frame["config_index"] = dataset.config_index
+    return frame

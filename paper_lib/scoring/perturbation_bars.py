@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 
 from paper_lib.agents.checkpoints import Checkpoint
-from paper_lib.ood.collect import noise_ood_states, pixel_ood_states, score_dataset
+from paper_lib.ood.collect import noise_ood_states, pixel_ood_states
+from paper_lib.scoring.ood_scores import score_dataset
 from paper_lib.ood.datasets import StateDataset
 from paper_lib.ood.pixels import PIXEL_PERTURBATIONS
 

@@ -32,7 +32,8 @@ from paper_lib.agents.checkpoints import Checkpoint, load_checkpoint
 from paper_lib.agents.training import train_run
 from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
 from paper_lib.measures.estimates import policy_features
-from paper_lib.ood.collect import ActionMode, collect_id_states, noise_ood_states, score_dataset
+from paper_lib.ood.collect import ActionMode, collect_id_states, noise_ood_states
+from paper_lib.scoring.ood_scores import score_dataset
 from paper_lib.ood.datasets import concat
 from paper_lib.scoring.metrics import detection_metrics
 from paper_lib.study.config import StudyConfig, StudySpec

@@ -20,10 +20,10 @@ from paper_lib.ood.collect import (
     collect_mujoco_ood_states,
     noise_ood_states,
     pixel_ood_states,
-    score_dataset,
 )
 from paper_lib.ood.datasets import StateDataset, concat
 from paper_lib.ood.mujoco import PerturbationConfig, UnstablePerturbationWarning, make_perturbed_env
+from paper_lib.scoring.ood_scores import score_dataset
 
 ENV = "HalfCheetah-v5"
 SAMPLED = ActionMode(deterministic=False)
