@@ -26,8 +26,7 @@ exactly those: a path renamed here or there and not in both places fails that te
 
 The notebooks and scripts ask a Layout (through `RunConfig.layout` where they have a config) for the paths
 under results/<profile>/ they read and write; the quickstart takes its paths as parameters, which dvc.yaml
-passes. Notebooks 08 (guard) and 12 (spawn) still spell theirs: their stages replay episodes, and their committed
-executions hold their source, so they move to Layout when `make recollect` next runs them. They still spell the stems of their tables and figures (their committed executions hold their source):
+passes. They still spell the stems of their tables and figures (their committed executions hold their source):
 `Layout.table` and `Layout.figure` refuse a stem that STAGE_TABLES (or CONDITIONAL_TABLES) and STAGE_FIGURES do
 not name, so a notebook cannot write a table dvc.yaml does not know of; the files inside a folder a stage writes
 whole (`Layout.table_folder`, `Layout.figure_folder`) are the stage's own.
