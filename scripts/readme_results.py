@@ -44,7 +44,8 @@ PROBES_START, PROBES_END = "<!-- probes:start -->", "<!-- probes:end -->"
 PROBES_CSV = Path("results/recipe_probes/summary_by_variant.csv")
 #: The probe table's columns: (summary_by_variant column, header in docs/deviations.md).
 PROBE_COLUMNS = (("seeds", "seeds"), ("train@100k", "100k"), ("train@200k", "200k"), ("train@300k", "300k"),
-                 ("train@1000k", "1e6"), ("eval_deterministic", "eval det."), ("eval_sampled", "eval sampled"),
+                 ("train@500k", "500k"), ("train@1000k", "1e6"), ("train@2000k", "2e6"),
+                 ("eval_deterministic", "eval det."), ("eval_sampled", "eval sampled"),
                  ("train@300k per seed", "300k per seed"))
 BENCH_METHODS = ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")
 #: Rows of the benchmark table in docs/benchmarks.md: (env, measurement, label).

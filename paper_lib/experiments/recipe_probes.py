@@ -7,11 +7,17 @@ way (sampled actions, Monitor's last 100 episodes) and the final agent's evaluat
 
     python -m paper_lib.experiments.recipe_probes results/recipe_probes \
         --extra Swimmer-v5/baseline-sb3-defaults=results/cpu/checkpoints/Swimmer-v5/baseline/seed0
+
+Rows already in results/recipe_probes/summary.csv whose run has not changed (same probe, seed and steps) are
+kept as they are: a probe is evaluated once, on the machine that trained it, and a later summary neither
+re-steps its episodes (MuJoCo's last bits differ between CPUs) nor loses rows whose folders have gone (the
+Swimmer `previous-recipe-*` rows, `--extra` runs since replaced). `--fresh` evaluates every run again.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +29,7 @@ from paper_lib.reporting.tables import save_table
 from paper_lib.scoring.rewards import evaluate_rewards
 
 #: Training steps at which the table reads the training curve.
-MARKS = (100_000, 200_000, 300_000, 500_000, 1_000_000)
+MARKS = (100_000, 200_000, 300_000, 500_000, 1_000_000, 2_000_000)
 
 
 def probe_row(name: str, folder: Path, episodes: int, seed: int) -> dict:
@@ -95,15 +101,41 @@ def ratio_clip_share(folder: Path, n_states: int = 400, clip_range: float = 0.1,
     return pd.DataFrame(rows)
 
 
-def summarize(root: Path, extra: dict[str, Path], episodes: int = 5, seed: int = 0) -> pd.DataFrame:
-    """One row per probe run (every seed folder of every variant, and the extra folders)."""
+def summarize(root: Path, extra: dict[str, Path], episodes: int = 5, seed: int = 0,
+              known: pd.DataFrame | None = None) -> pd.DataFrame:
+    """One row per probe run (every seed folder of every variant, and the extra folders).
+
+    `known` (a previous summary) supplies the rows of runs that have not changed since (same probe, seed and
+    steps) and of runs no longer on disk; only new or extended runs are evaluated.
+    """
     runs = [(f"{p.parent.parent.name}/{p.parent.name}", p) for p in sorted(root.glob("*/*/seed*"))
             if (p / "config.json").is_file()]
     runs += sorted(extra.items())
-    df = pd.DataFrame([probe_row(name, folder, episodes, seed) for name, folder in runs])
-    marks = [c for c in df.columns if c.startswith("train@")]
+    known = known if known is not None else pd.DataFrame(columns=["probe", "seed", "steps"])
+    known_keys = {(r.probe, int(r.seed), int(r.steps)): i for i, r in known.iterrows()}
+    rows, reused = [], set()
+    for name, folder in runs:
+        ckpt_key = (name, *_seed_and_steps(folder))
+        if ckpt_key in known_keys:
+            reused.add(known_keys[ckpt_key])
+            rows.append(known.loc[known_keys[ckpt_key]].to_dict())
+        else:
+            rows.append(probe_row(name, folder, episodes, seed))
+    on_disk = {name for name, _ in runs}
+    # rows of runs whose folders are gone (and not replaced by a newer run of the same probe and seed)
+    gone = [i for i, r in known.iterrows() if i not in reused and r.probe not in on_disk]
+    rows += [known.loc[i].to_dict() for i in gone]
+    df = pd.DataFrame(rows).sort_values(["probe", "seed"], kind="stable").reset_index(drop=True)
+    marks = sorted((c for c in df.columns if c.startswith("train@")), key=lambda c: int(c[6:-1]))
     return df[["probe", "seed", "method", "steps", *marks, "eval_deterministic", "eval_sampled", "dropout_p",
                "masksembles_scale", "policy", "normalize_obs", "normalize_reward", "wall_minutes"]]
+
+
+def _seed_and_steps(folder: Path) -> tuple[int, int]:
+    """A run's seed and trained steps, from its config and training curve (no model is loaded)."""
+    config = json.loads((folder / "config.json").read_text())
+    steps = pd.read_csv(folder / "training_curve.csv", usecols=["timesteps"])["timesteps"].iloc[-1]
+    return int(config["seed"]), int(steps)
 
 
 def by_variant(df: pd.DataFrame) -> pd.DataFrame:
@@ -127,6 +159,7 @@ def main() -> None:
     parser.add_argument("--extra", action="append", default=[], metavar="NAME=FOLDER",
                         help="another checkpoint folder to compare (e.g. a run of the previous recipe)")
     parser.add_argument("--episodes", type=int, default=5)
+    parser.add_argument("--fresh", action="store_true", help="evaluate every run again, ignoring summary.csv")
     args = parser.parse_args()
     th.set_num_threads(1)
     extra = {}
@@ -143,7 +176,9 @@ def main() -> None:
                    "re-evaluated with fresh masks (same), on 400 visited states, at the learned and at wider action "
                    "stds with the same member means.", float_format="%.2f")
         print(shares.to_string())
-    df = summarize(args.root, extra, args.episodes)
+    previous = args.root / "summary.csv"
+    known = None if args.fresh or not previous.is_file() else pd.read_csv(previous)
+    df = summarize(args.root, extra, args.episodes, known=known)
     caption = (f"Recipe probes: training reward (sampled actions, mean of the Monitor's last-100-episode mean over the "
                f"last 5% of steps before each mark) and the final agent's reward over {args.episodes} evaluation "
                "episodes (combined inference), one row per run. Hints for choosing the recipe, not results.")
