@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Land a run trained outside DVC (by scripts/train_queue.sh): collect its ID/OOD states and evaluation
 # episodes with the committed code (a HEAD worktree, so edits in progress in this tree do not leak in),
-# copy them back, and record the train, collect and evaluate stages in dvc.lock (`dvc commit`).
+# copy them back, and record the train, collect and evaluate stages in dvc.lock (`dvc commit`). A run not trained
+# with what params.yaml gives it today (paper_lib.pipeline.landing) is refused before anything is written.
 #   scripts/land_run.sh ENV METHOD SEED [ENV METHOD SEED ...]
 # Then `git add` the run's checkpoint, dataset, evaluation and dvc.lock, and `make reproduce` to score it.
 set -eu
@@ -24,6 +25,8 @@ for ((i = 0; i + 2 < ${#args[@]}; i += 3)); do
     exit 2 ;;
   esac
 done
+# Each run must have been trained as params.yaml trains it now (recipe, overrides, budget): DVC will vouch for it.
+"$py" -m paper_lib.pipeline.landing "$@" || exit 2
 wt=$(mktemp -d /tmp/land_run.XXXXXX)
 git worktree add -q --detach "$wt" HEAD
 trap 'cd "$root" && git worktree remove --force "$wt"' EXIT

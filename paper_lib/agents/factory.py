@@ -246,7 +246,7 @@ def paper_hyperparameters(env_id: str) -> dict[str, Any]:
     return copy.deepcopy(table[env_id])
 
 
-def make_agent(
+def resolve_run_config(
     algo: str,
     method: str,
     env_id: str,
@@ -260,19 +260,11 @@ def make_agent(
     n_envs: int | None = None,
     overrides: dict[str, Any] | None = None,
     hyperparameters: dict[str, Any] | None = None,
-    env: VecEnv | None = None,
-    device: str = "cpu",
-    verbose: int = 0,
-    tensorboard_log: str | None = None,
-    env_processes: bool = False,
-) -> BaseAlgorithm:
-    """Build an SB3 model with the paper's hyperparameters for `env_id` and the given method.
+) -> dict[str, Any]:
+    """The settings `make_agent` trains with (its `paper_lib_config`), checked, without building anything.
 
-    `hyperparameters` replaces the packaged table entry for `env_id` (the pipeline passes
-    params.yaml's). `overrides` replaces entries of the algorithm settings (e.g. {"n_steps": 64}). Every
-    input is checked before an env or network is built. The resolved settings are kept on the
-    model as `model.paper_lib_config` and saved with it. `env_processes` steps the envs in
-    subprocesses (see `make_env`): the same transitions, for many-core machines.
+    What a run's config.json records, so a checkpoint can be compared with what a stage would train today
+    (paper_lib.pipeline.landing) without an env or a network.
     """
     if algo not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algo!r}; use one of {sorted(ALGORITHMS)}")
@@ -285,7 +277,6 @@ def make_agent(
     if not isinstance(env_id, str):
         raise ValueError(f"env_id must be a Gymnasium id string such as 'HalfCheetah-v5', got {env_id!r}")
     seed = check_seed(seed)  # a plain int from here on: gymnasium refuses numpy integers, json too
-    check_device(device)
     hp = paper_hyperparameters(env_id) if hyperparameters is None else copy.deepcopy(hyperparameters)
     validate_hyperparameters(hp, env_id)
     check_member_values(dict(n_members=n_members, dropout_p=dropout_p, masksembles_scale=masksembles_scale), "make_agent",
@@ -321,6 +312,47 @@ def make_agent(
                   policy=dict(hp.get("policy") or {}) if mlp_settings else {},
                   algo_kwargs=dict(algo_kwargs), linear_lr_decay=bool(hp.get("linear_lr_decay", False)),
                   total_timesteps=hp.get("total_timesteps"))
+
+    return config
+
+
+def make_agent(
+    algo: str,
+    method: str,
+    env_id: str,
+    seed: int = 0,
+    *,
+    n_members: int | None = None,
+    assignment: str = "shared",
+    inference: str = "vote",
+    dropout_p: float | None = None,
+    masksembles_scale: float | None = None,
+    n_envs: int | None = None,
+    overrides: dict[str, Any] | None = None,
+    hyperparameters: dict[str, Any] | None = None,
+    env: VecEnv | None = None,
+    device: str = "cpu",
+    verbose: int = 0,
+    tensorboard_log: str | None = None,
+    env_processes: bool = False,
+) -> BaseAlgorithm:
+    """Build an SB3 model with the paper's hyperparameters for `env_id` and the given method.
+
+    `hyperparameters` replaces the packaged table entry for `env_id` (the pipeline passes
+    params.yaml's). `overrides` replaces entries of the algorithm settings (e.g. {"n_steps": 64}). Every
+    input is checked before an env or network is built. The resolved settings are kept on the
+    model as `model.paper_lib_config` and saved with it. `env_processes` steps the envs in
+    subprocesses (see `make_env`): the same transitions, for many-core machines.
+    """
+    check_device(device)
+    config = resolve_run_config(algo, method, env_id, seed, n_members=n_members, assignment=assignment,
+                                inference=inference, dropout_p=dropout_p, masksembles_scale=masksembles_scale,
+                                n_envs=n_envs, overrides=overrides, hyperparameters=hyperparameters)
+    hp = paper_hyperparameters(env_id) if hyperparameters is None else copy.deepcopy(hyperparameters)
+    mlp_settings = {} if is_atari(env_id) else policy_settings(hp, env_id)
+    seed, n_envs, n_members = config["seed"], config["n_envs"], config["n_members"]
+    dropout_p, masksembles_scale, hidden = config["dropout_p"], config["masksembles_scale"], config["hidden_sizes"]
+    algo_kwargs = dict(config["algo_kwargs"])
 
     if env is None:
         env = make_env(env_id, n_envs, seed, normalize_obs=hp["normalize_obs"],
