@@ -70,6 +70,7 @@ from paper_lib.methods.independent import assemble_ensemble
 from paper_lib.methods.networks import MEMBER_METHODS
 from paper_lib.ood.datasets import StateDataset
 from paper_lib.pipeline.config import PARAMS_FILE, RunConfig, check_keys, parse_params, validate_params
+from paper_lib.pipeline.landing import TRAINING_KEYS, differences, expected_for
 from paper_lib.pipeline.layout import RUN_FOLDERS, combination_name
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, check_provenance,
                                             check_score_provenance, check_scores_destination, describe_identity,
@@ -79,10 +80,6 @@ from paper_lib.pipeline.stages import collect_run, collect_states
 
 SECTION = "ensembles"
 ASSIGNMENTS = ("shared", "own")
-#: Training settings that must agree between a `shared` run and its `own` twin (all but the assignment).
-TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dropout_p", "masksembles_scale",
-                 "hidden_sizes", "normalize_obs", "normalize_reward", "policy", "algo_kwargs", "linear_lr_decay",
-                 "total_timesteps")
 #: What a run needs before it enters the tables, in pipeline order.
 ARTIFACTS = tuple(RUN_FOLDERS)
 #: How to fix a wrong `ensembles` section, said at the end of each error.
@@ -324,18 +321,13 @@ def read_config(folder: Path) -> dict[str, Any] | None:
 
 
 def member_problem(cfg: EnsemblesConfig, env_id: str, seed: int) -> str | None:
-    """Why member (env, seed) cannot be used yet, or None."""
+    """Why member (env, seed) cannot be used yet, or None: not trained, or not as the rule trains it."""
     config = read_config(cfg.member_dir(env_id, seed))
     if config is None:
         return "not trained"
-    steps, overrides = cfg.member_budget(env_id)[0], cfg.member_overrides(env_id)
-    expected_algo = {**cfg.run.hyperparameters[env_id]["algo"], **overrides}
-    if config.get("method") != "baseline" or config.get("env_id") != env_id or config.get("seed") != seed:
-        return f"holds {config.get('env_id')} {config.get('method')} seed {config.get('seed')}"
-    if config.get("total_timesteps") != steps or config.get("algo_kwargs") != expected_algo:
-        return (f"trained with {config.get('total_timesteps')} steps and {config.get('algo_kwargs')}, the rule gives "
-                f"{steps} steps and {expected_algo}; retrain it")
-    return None
+    steps, kwargs = member_train_args(cfg, env_id)
+    wrong = differences(config, expected_for(env_id, "baseline", seed, steps, kwargs))
+    return f"not trained as the rule trains it ({'; '.join(wrong)}); retrain it" if wrong else None
 
 
 def own_problem(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> str | None:
@@ -343,12 +335,11 @@ def own_problem(cfg: EnsemblesConfig, env_id: str, method: str, seed: int) -> st
     config = read_config(cfg.own.checkpoint_dir(env_id, method, seed))
     if config is None:
         return "not trained"
-    hp = cfg.run.hyperparameters[env_id]
-    expected = dict(env_id=env_id, method=method, seed=seed, assignment="own",
-                    algo_kwargs={**hp["algo"], **(cfg.run.overrides or {})},
-                    total_timesteps=cfg.run.budget(env_id) or hp["total_timesteps"])
-    differ = [k for k, v in expected.items() if config.get(k) != v]
-    return f"trained with other {differ}; retrain it" if differ else None
+    steps, kwargs = own_train_args(cfg, env_id)
+    wrong = differences(config, expected_for(env_id, method, seed, steps, kwargs))
+    if config.get("assignment") != "own":
+        wrong.insert(0, f"assignment: trained with {config.get('assignment')!r}, the part needs 'own'")
+    return f"trained with other settings ({'; '.join(wrong)}); retrain it" if wrong else None
 
 
 def pair_problem(shared: dict[str, Any] | None, own: dict[str, Any] | None) -> str | None:
@@ -357,6 +348,7 @@ def pair_problem(shared: dict[str, Any] | None, own: dict[str, Any] | None) -> s
         return " and ".join(name for name, c in (("shared", shared), ("own", own)) if c is None) + " not trained"
     if shared.get("assignment", "shared") != "shared" or own.get("assignment") != "own":
         return f"assignments are {shared.get('assignment')!r} / {own.get('assignment')!r}"
+    # the training settings (paper_lib.pipeline.landing.TRAINING_KEYS) must agree, all but the assignment
     differ = [k for k in TRAINING_KEYS if config_value(shared, k) != config_value(own, k)]
     if differ:
         return "trained with different settings: " + "; ".join(f"{k}: shared {shared.get(k)!r}, own {own.get(k)!r}"

@@ -26,14 +26,20 @@ TRAINING_KEYS = ("algo", "method", "env_id", "seed", "n_envs", "n_members", "dro
                  "total_timesteps")
 
 
+def expected_for(env_id: str, method: str, seed: int, total_timesteps: int | None,
+                 agent_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The config.json `train_run(env_id, method, seed, ..., total_timesteps, agent_kwargs)` would write."""
+    config = resolve_run_config("ppo", method, env_id, seed, **agent_kwargs)
+    return {**config, "total_timesteps": total_timesteps or config["total_timesteps"]}
+
+
 def expected_config(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any]:
     """The config.json the profile's `train` stage would write for this run (paper_lib.pipeline.stages.train_stage)."""
     if env_id not in cfg.hyperparameters:
         raise ValueError(f"params.yaml has no hyperparameters for {env_id!r}; known: {sorted(cfg.hyperparameters)}")
-    hp = cfg.hyperparameters[env_id]
-    config = resolve_run_config("ppo", method, env_id, seed, hyperparameters=hp, overrides=cfg.overrides or None,
-                                inference=cfg.inference)
-    return {**config, "total_timesteps": cfg.budget(env_id) or hp["total_timesteps"]}
+    return expected_for(env_id, method, seed, cfg.budget(env_id),
+                        {"hyperparameters": cfg.hyperparameters[env_id], "overrides": cfg.overrides or None,
+                         "inference": cfg.inference})
 
 
 def trained_config(folder: Path) -> dict[str, Any]:
@@ -44,10 +50,8 @@ def trained_config(folder: Path) -> dict[str, Any]:
     return json.loads((folder / "config.json").read_text())
 
 
-def mismatches(cfg: RunConfig, env_id: str, method: str, seed: int, folder: Path | None = None) -> list[str]:
-    """Every training setting in which the run's checkpoint differs from what params.yaml trains, as text."""
-    trained = trained_config(folder or cfg.checkpoint_dir(env_id, method, seed))
-    expected = expected_config(cfg, env_id, method, seed)
+def differences(trained: dict[str, Any], expected: dict[str, Any]) -> list[str]:
+    """Every training setting in which `trained` (a config.json) differs from `expected`, as text."""
     wrong = []
     for key in TRAINING_KEYS:
         have, want = config_value(trained, key), expected[key]
@@ -60,6 +64,12 @@ def mismatches(cfg: RunConfig, env_id: str, method: str, seed: int, folder: Path
     if steps is not None and steps < expected["total_timesteps"]:
         wrong.append(f"trained_timesteps: {steps}, fewer than the budget {expected['total_timesteps']}")
     return wrong
+
+
+def mismatches(cfg: RunConfig, env_id: str, method: str, seed: int, folder: Path | None = None) -> list[str]:
+    """Every training setting in which the run's checkpoint differs from what params.yaml trains, as text."""
+    trained = trained_config(folder or cfg.checkpoint_dir(env_id, method, seed))
+    return differences(trained, expected_config(cfg, env_id, method, seed))
 
 
 def check_landing(cfg: RunConfig, env_id: str, method: str, seed: int) -> None:

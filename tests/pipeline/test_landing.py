@@ -80,3 +80,22 @@ def test_the_command_line_names_unfinished_runs_and_fails(tmp_path):
                          capture_output=True, text=True, env={"PYTHONPATH": str(REPO), "PATH": ""})
     assert run.returncode != 0
     assert "results/paper/checkpoints/Walker2d-v5/masksembles/seed1/model.zip is missing" in run.stderr
+
+
+def test_an_independent_member_is_held_to_every_training_setting_of_the_rule(tmp_path):
+    """Not only the algorithm settings: a member stepping another number of envs is not a member of the rule."""
+    from paper_lib.experiments import ensembles as ens
+
+    cfg = ens.load_ensembles_config(REPO / "params.yaml")
+    env_id = cfg.envs[0]
+    committed = REPO / cfg.member_dir(env_id, 0)
+    cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, root=tmp_path))
+    folder = cfg.member_dir(env_id, 0)
+    folder.mkdir(parents=True)
+    shutil.copy(committed / "config.json", folder / "config.json")
+    (folder / "model.zip").write_bytes(b"only its presence is read")
+    assert ens.member_problem(cfg, env_id, 0) is None
+    n_envs = json.loads((folder / "config.json").read_text())["n_envs"]
+    edit_config(folder, n_envs=n_envs + 1)
+    assert ens.member_problem(cfg, env_id, 0) == (f"not trained as the rule trains it (n_envs: trained with "
+                                                  f"{n_envs + 1}, params.yaml gives {n_envs}); retrain it")
