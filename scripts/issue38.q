@@ -25,7 +25,7 @@
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 2 results/paper/independent/checkpoints/Walker2d-v5/baseline/seed2 --timesteps 250000 --hp algo.n_epochs=80
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 3 results/paper/independent/checkpoints/Walker2d-v5/baseline/seed3 --timesteps 250000 --hp algo.n_epochs=80
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 4 results/paper/independent/checkpoints/Walker2d-v5/baseline/seed4 --timesteps 250000 --hp algo.n_epochs=80
-# Ant at the paper's 1e7 steps, seed 0 of every method first (6-7 h a run on one core here)
+# Ant at the paper's 1e7 steps, seed 0 of every method first (the baseline took 9.2 h on one core here, beside another run)
 .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/paper/checkpoints/Ant-v5/baseline/seed0
 .venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 0 results/paper/checkpoints/Ant-v5/masksembles/seed0
 .venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropout 0 results/paper/checkpoints/Ant-v5/mc_dropout/seed0
