@@ -21,10 +21,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import nbformat
-import yaml
+#: nbformat and papermill import jsonschema, which compiles rfc3987-syntax's 38 Lark grammars at import (about 2.5 s of
+#: every notebook stage here) to check the `iri` string formats, which no notebook schema uses: the runner goes
+#: without them (jsonschema skips a format whose checker cannot be imported). The kernel is a process of its own.
+sys.modules.setdefault("rfc3987_syntax", None)  # type: ignore[arg-type]
 
-from paper_lib.common.io import check_file_destination, write_text_atomic
+import nbformat  # noqa: E402
+import yaml  # noqa: E402
+
+from paper_lib.common.io import check_file_destination, write_text_atomic  # noqa: E402
 
 #: jupyter_client interrupts a kernel before asking it to shut down; when the interrupt lands while the kernel still
 #: answers a message, ipykernel logs "KeyboardInterrupt caught in kernel". The notebook has finished by then: the

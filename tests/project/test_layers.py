@@ -187,8 +187,13 @@ def test_dvc_stages_depend_on_all_the_code_they_run():
 
 
 def test_the_package_root_exports_about_a_dozen_names_and_loads_the_heavy_ones_on_first_use():
-    """`from paper_lib import ...` serves what a user of the methods needs; the rest lives in its layer's package."""
-    probe = ("import sys, paper_lib; heavy = ('sklearn', 'paper_lib.guard', 'paper_lib.pipeline.evaluate_agent'); "
+    """`from paper_lib import ...` serves what a user of the methods needs; the rest lives in its layer's package.
+
+    Nothing is imported before it is asked for: the notebook runner (every notebook stage) needs neither torch nor
+    jsonschema's Lark grammars, which took about 5 s of each stage.
+    """
+    probe = ("import sys, paper_lib.pipeline.notebook_run; heavy = ('torch', 'stable_baselines3', 'lark', 'sklearn', "
+             "'paper_lib.guard', 'paper_lib.pipeline.evaluate_agent'); "
              "print([m for m in heavy if m in sys.modules]); "
              "print([n for n in paper_lib.__all__ if getattr(paper_lib, n, None) is None]); "
              "print(paper_lib.Guard.__module__, paper_lib.evaluate_agent.__module__)")
