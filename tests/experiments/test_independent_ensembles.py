@@ -308,7 +308,7 @@ def test_notebook_at_tiny_lists_what_is_missing_and_writes_every_table(tmp_path)
     assert len(ens.collect_all(cfg, log=lambda line: None)) == 5 + 2  # the shared twin is outside the main matrix
     assert len(ens.evaluate_all(cfg, log=lambda line: None)) == 5 * 2 + 2 * 2
     env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ['PATH']}", "MPLBACKEND": "Agg"}
-    done = subprocess.run([str(BIN / "papermill"), "-k", "python3", "--log-level", "WARNING",
+    done = subprocess.run([str(BIN / "python"), "-m", "paper_lib.pipeline.notebook_run",  # as its DVC stage runs it
                            "notebooks/11_ensembles.ipynb", str(tmp_path / "11.ipynb"),
                            "-p", "params_file", str(params)],
                           cwd=REPO, env=env, capture_output=True, text=True, check=False)

@@ -494,7 +494,7 @@ def test_a_guard_budget_can_cover_some_seeds_only():
 def test_notebook_8_runs_at_the_tiny_budget(tiny_repo, tmp_path):
     env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ['PATH']}", "MPLBACKEND": "Agg"}
     out = tmp_path / "08_guard.ipynb"
-    done = subprocess.run([str(BIN / "papermill"), "-k", "python3", "--log-level", "WARNING",
+    done = subprocess.run([str(BIN / "python"), "-m", "paper_lib.pipeline.notebook_run",  # as its DVC stage runs it
                            str(REPO / "notebooks/08_guard.ipynb"), str(out), "-p", "params_file",
                            str(tiny_repo / "params.yaml")], cwd=REPO, env=env, capture_output=True, text=True,
                           check=False)
