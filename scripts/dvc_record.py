@@ -1,8 +1,9 @@
 """Record many DVC stages as up to date at once: `dvc commit -f` for a list of stages, one index load.
 
 For a change that moves code without changing what it computes (a module renamed, a dep list rewritten), after
-`make verify` has shown the outputs unchanged; and for runs landed from outside DVC (scripts/land_run.sh). `dvc commit -f STAGE ...` reloads the repo index for every
-target (about 8 s each here, 45 min for the 320 stages of the main matrix); this loads it once (2 min).
+`make verify` has shown the outputs unchanged; and for runs landed from outside DVC (scripts/land_run.sh).
+`dvc commit -f STAGE ...` reloads the repo index for every target (about 8 s each here, 45 min for the 320 stages
+of the main matrix); this loads it once (2 min).
     python scripts/dvc_record.py STAGES_FILE      # one stage address per line, e.g. score@HalfCheetah-v5-baseline-0
 """
 
