@@ -42,7 +42,7 @@ retrain: $(STAMP)
 	$(WITH_VENV) $(BIN)/python -m paper_lib.pipeline.reproduce --retrain
 
 test: $(STAMP) browser-deps
-	$(WITH_VENV) $(BIN)/python -m pytest -n 2 --dist loadfile -q tests
+	$(WITH_VENV) $(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q tests
 
 # Same seed, same machine: same numbers. Writes nothing under results/ (paper_lib/pipeline/verify.py).
 verify: $(STAMP)
