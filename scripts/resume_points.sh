@@ -9,6 +9,9 @@
 #   scripts/resume_points.sh save --keep-landed TRAINING_TREE [REPO]
 #                                                          also keep finished runs' last resume points (a probe
 #                                                          to be extended to a larger budget later)
+# A resume point at the step of the copy already in REPO keeps that copy's bytes: a finished run that lands again on
+# a new machine rewrites its files (zip timestamps, a few ms more wall time) without training, and committing those
+# would add megabytes of history a session for nothing.
 #   scripts/resume_points.sh restore [REPO] TRAINING_TREE  put them back where training resumes from them
 # REPO defaults to the repository this script is in. Paths below results/ are kept:
 #   results/recipe_probes/Walker2d-v5/x/.seed1.resume/  <->  results/resume_points/recipe_probes/Walker2d-v5/x/seed1/
@@ -24,6 +27,15 @@ case "$mode" in
 esac
 store="$repo/results/resume_points"
 [ -d "$tree/results" ] || { echo "error: $tree has no results/ folder: give the training tree's root" >&2; exit 2; }
+python=$here/.venv/bin/python; [ -x "$python" ] || python=python3
+
+step_of() {  # the training step a resume point was saved at (its state.pkl); nothing when it cannot be read
+  "$python" -c 'import pickle, sys
+try:
+    print(pickle.load(open(sys.argv[1], "rb"))["num_timesteps"])
+except Exception:
+    pass' "$1" 2> /dev/null || true
+}
 
 if [ "$mode" = save ]; then
   n=0
@@ -35,9 +47,16 @@ if [ "$mode" = save ]; then
       rm -rf "${store:?}/$rel"                      # landed: its resume point is no longer needed
       continue
     fi
+    n=$((n + 1))
+    if [ -f "$store/$rel/state.pkl" ]; then
+      step=$(step_of "$state")
+      if [ -n "$step" ] && [ "$step" = "$(step_of "$store/$rel/state.pkl")" ]; then
+        echo "kept $rel (step $step, as saved before)"; continue
+      fi
+    fi
     mkdir -p "$store/$rel.tmp" && cp -r "$resume/." "$store/$rel.tmp/"
     rm -rf "${store:?}/$rel" && mv "$store/$rel.tmp" "$store/$rel"   # a kill leaves the previous copy
-    n=$((n + 1)); echo "saved $rel ($(du -sh "$store/$rel" | cut -f1))"
+    echo "saved $rel ($(du -sh "$store/$rel" | cut -f1))"
   done < <(find "$tree/results" -path "$store" -prune -o -name state.pkl -path '*/.*.resume/*' -print0)
   echo "$n resume point(s) in $store"
 else

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import subprocess
 from pathlib import Path
 
@@ -56,6 +57,34 @@ def test_keep_landed_carries_a_finished_run_to_extend_later(tmp_path):
     assert not (repo / "results" / "resume_points" / RUN / "seed1").exists()
     assert _run("save", "--keep-landed", str(tree), str(repo)).returncode == 0
     assert (repo / "results" / "resume_points" / RUN / "seed1" / "state.pkl").read_bytes() == b"finishedstate.pkl"
+
+
+def _state(folder: Path, step: int, wall_seconds: float) -> bytes:
+    data = pickle.dumps({"num_timesteps": step, "wall_seconds": wall_seconds})
+    (folder / "state.pkl").write_bytes(data)
+    return data
+
+
+def test_a_resume_point_at_the_saved_step_keeps_the_saved_bytes(tmp_path):
+    """A finished run landing again on a new machine rewrites its resume point without training: not a change."""
+    tree, repo = tmp_path / "frozen", tmp_path / "repo"
+    (repo / "results").mkdir(parents=True)
+    point = _resume_point(tree, 0, b"at 1e6")
+    first = _state(point, 1_000_000, 4279.56)
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    store = repo / "results" / "resume_points" / RUN / "seed0"
+    assert (store / "state.pkl").read_bytes() == first
+
+    _state(point, 1_000_000, 4279.57)  # landed again: same step, a few ms more wall time, a new zip
+    (point / "model.zip").write_bytes(b"same weights, new zip timestamps")
+    done = _run("save", str(tree), str(repo))
+    assert done.returncode == 0 and "kept" in done.stdout, done.stdout + done.stderr
+    assert (store / "state.pkl").read_bytes() == first and (store / "model.zip").read_bytes() == b"at 1e6model.zip"
+
+    later = _state(point, 1_200_000, 5000.0)  # trained on: saved
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    assert (store / "state.pkl").read_bytes() == later
+    assert (store / "model.zip").read_bytes() == b"same weights, new zip timestamps"
 
 
 def test_a_tree_without_results_is_one_clear_error(tmp_path):
