@@ -29,11 +29,21 @@ def _autogroups_in_use() -> bool:
 
 
 def _run(queue: Path, prefix: list[str]) -> tuple[int | None, str]:
-    """Start the queue, read its autogroup's nice while its line runs, and wait for it to finish."""
+    """Start the queue, read its autogroup's nice until its line has run, and wait for it to finish.
+
+    Polled, not read once after a fixed sleep: on a loaded machine the script may set its nice late. The value
+    returned is the last one read while the queue ran (its line sleeps 2 s, long after the script set it).
+    """
     proc = subprocess.Popen([*prefix, "bash", str(SCRIPT), str(queue), "1"], stdout=subprocess.DEVNULL,
                             stderr=subprocess.STDOUT)
-    time.sleep(1.0)
-    nice = _autogroup_nice(proc.pid)
+    nice = None
+    while proc.poll() is None:
+        try:
+            read = _autogroup_nice(proc.pid)
+        except (FileNotFoundError, ProcessLookupError):  # it ended between poll() and the read
+            break
+        nice = nice if read is None else read  # an exiting process may read empty
+        time.sleep(0.05)
     assert proc.wait(timeout=30) == 0
     return nice, queue.read_text()
 
