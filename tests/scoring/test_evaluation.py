@@ -15,7 +15,8 @@ from paper_lib.scoring.rewards import evaluate_rewards
                                                ("HalfCheetah-v5", [True, False])])
 def test_berzerk_is_evaluated_with_sampled_actions_only(env_id, modes, tiny_overrides, tmp_path: Path):
     # the paper: a deterministic Berzerk agent gets stuck, so its Table 1 cells are sampled only
-    model = make_agent("ppo", "baseline", env_id, seed=0, n_envs=1, overrides=tiny_overrides)
+    one_env = {**tiny_overrides, "batch_size": 16}  # 16 steps a rollout with one env: no truncated minibatch
+    model = make_agent("ppo", "baseline", env_id, seed=0, n_envs=1, overrides=one_env)
     checkpoint = Checkpoint(model, {"env_id": env_id, "method": "baseline"}, None, tmp_path)
     episodes = evaluate_rewards(checkpoint, episodes=1, seed=0)
     assert sorted(episodes["deterministic"].unique(), reverse=True) == modes
