@@ -9,12 +9,12 @@
 #   scripts/resume_points.sh save --keep-landed TRAINING_TREE [REPO]
 #                                                          also keep finished runs' last resume points (a probe
 #                                                          to be extended to a larger budget later)
-# A resume point at the step of the copy already in REPO keeps that copy's bytes: a finished run that lands again on
-# a new machine rewrites its files (zip timestamps, a few ms more wall time) without training, and committing those
-# would add megabytes of history a session for nothing.
 #   scripts/resume_points.sh restore [REPO] TRAINING_TREE  put them back where training resumes from them
 # REPO defaults to the repository this script is in. Paths below results/ are kept:
 #   results/recipe_probes/Walker2d-v5/x/.seed1.resume/  <->  results/resume_points/recipe_probes/Walker2d-v5/x/seed1/
+# A resume point at the step of the copy already in REPO keeps that copy's bytes: a finished run that lands again on
+# a new machine rewrites its files (zip timestamps, a few ms more wall time) without training, and committing those
+# would add megabytes of history a session for nothing.
 set -euo pipefail
 here=$(cd "$(dirname "$0")/.." && pwd)
 mode=${1:-}
