@@ -3,9 +3,11 @@
 # back on the next machine. A resume point (`.<run>.resume/` beside the run's checkpoint path, paper_lib.agents.training)
 # holds the model with its optimizer, the normalizer, the curve so far and the RNG states: well under 1 MB for
 # the MuJoCo MLPs.
-#   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs still in progress
-#                                                          (no model.zip yet) into REPO/results/resume_points/,
-#                                                          and drop the copies of runs that have landed
+#   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs not landed yet (still
+#                                                          in progress, or finished but REPO lacks that model.zip)
+#                                                          into REPO/results/resume_points/, and drop the copies
+#                                                          of runs that have landed (the tree's checkpoint was
+#                                                          trained to the resume point's step, REPO holds it)
 #   scripts/resume_points.sh save --keep-landed TRAINING_TREE [REPO]
 #                                                          also keep finished runs' last resume points (a probe
 #                                                          to be extended to a larger budget later)
@@ -29,6 +31,19 @@ store="$repo/results/resume_points"
 [ -d "$tree/results" ] || { echo "error: $tree has no results/ folder: give the training tree's root" >&2; exit 2; }
 python=$here/.venv/bin/python; [ -x "$python" ] || python=python3
 
+trained_of() {  # the steps a finished checkpoint was trained for (its config.json); nothing when it cannot be read
+  "$python" -c 'import json, sys
+try:
+    print(json.load(open(sys.argv[1]))["trained_timesteps"])
+except Exception:
+    pass' "$1" 2> /dev/null || true
+}
+
+landed() {  # landed() RUN_FOLDER STATE REL: the checkpoint came from this resume point, and REPO holds the same one
+  [ -f "$1/model.zip" ] && cmp -s "$1/model.zip" "$repo/results/$3/model.zip" &&
+    [ "$(trained_of "$1/config.json")" = "$(step_of "$2")" ]  # not the older run a retraining will replace
+}
+
 step_of() {  # the training step a resume point was saved at (its state.pkl); nothing when it cannot be read
   "$python" -c 'import pickle, sys
 try:
@@ -43,10 +58,10 @@ if [ "$mode" = save ]; then
     resume=$(dirname "$state")                     # .../x/.seed1.resume
     run="$(dirname "$resume")/$(basename "$resume" .resume | sed 's/^\.//')"  # .../x/seed1
     rel=${run#"$tree/results/"}
-    if [ -f "$run/model.zip" ] && [ $keep_landed = 0 ]; then
+    if [ $keep_landed = 0 ] && landed "$run" "$state" "$rel"; then
       rm -rf "${store:?}/$rel"                      # landed: its resume point is no longer needed
       continue
-    fi
+    fi                                              # finished but not landed: its last resume point lands it
     n=$((n + 1))
     if [ -f "$store/$rel/state.pkl" ]; then
       step=$(step_of "$state")

@@ -4,10 +4,11 @@
 # A machine that still has WORKTREE (the previous session's) keeps it and its resume points, which are newer than
 # the committed ones, and its queue file's marks ("#started" lines are queued again: they resume). A new machine
 # gets a worktree at HEAD sharing this tree's .venv (later edits here never reach a running training), the committed
-# resume points (results/resume_points/, scripts/resume_points.sh), the two Walker2d baseline runs that are the
-# committed recipe probes, and a fresh copy of scripts/issue38.q: Walker2d's lines first, so both workers finish it
-# before Ant. A finished run whose final resume point was committed lands again in seconds.
-# Before stopping: scripts/resume_points.sh save --keep-landed WORKTREE, and commit results/resume_points.
+# resume points (results/resume_points/, scripts/resume_points.sh) and a fresh copy of scripts/issue38.q: Walker2d's
+# lines first (its scaling runs and studies), so both workers finish them before Ant. A finished run whose final
+# resume point was committed lands again in seconds.
+# Before stopping: scripts/resume_points.sh save WORKTREE (it keeps the resume points of runs not landed yet, finished
+# ones included), and commit results/resume_points.
 # NO_START=1 prepares the worktree and the queue and stops before starting the workers.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -26,11 +27,6 @@ else
   git -C "$repo" worktree add --detach "$tree" HEAD
   ln -s "$repo/.venv" "$tree/.venv"
   "$repo/scripts/resume_points.sh" restore "$repo" "$tree"
-  for seed in 0 1; do  # Walker2d's baseline seeds 0 and 1 are the recipe probes at the decided recipe (issue38.q)
-    probe="$tree/results/recipe_probes/Walker2d-v5/baseline-zoo-n4-128/seed$seed"
-    run="$tree/results/paper/checkpoints/Walker2d-v5/baseline/seed$seed"
-    rm -rf "$run" && cp -r "$probe" "$run"
-  done
 fi
 
 mkdir -p "$queue_dir"

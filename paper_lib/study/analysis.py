@@ -27,6 +27,8 @@ TRIAL_COLUMNS = ["study", *KEYS, "number", "state", "reward", "auroc", "seed", "
                  "surplus", "worker", "seconds", "reward_std", "final_training_reward", "auroc_measure", "config"]
 #: A study's `progress` status once it holds its target of COMPLETE trials.
 DONE = "done"
+#: A study's `progress` status while its stored trials were trained with an older recipe of its env.
+OTHER_RECIPE = "another recipe, to train again"
 #: What `reading` says for an (algorithm, env) whose studies are not all done.
 NOT_READ = "not read yet"
 
@@ -64,13 +66,16 @@ def load_trials(storage: str | optuna.storages.BaseStorage, names: Iterable[str]
     return pd.DataFrame(rows) if rows else pd.DataFrame(columns=TRIAL_COLUMNS)
 
 
-def progress(trials: pd.DataFrame, targets: dict[str, int]) -> pd.DataFrame:
-    """Per configured study (name -> target of COMPLETE trials): its trials so far and whether it is done."""
-    rows = []
+def progress(trials: pd.DataFrame, targets: dict[str, int], other_recipe: Iterable[str] = ()) -> pd.DataFrame:
+    """Per configured study (name -> target of COMPLETE trials): its trials so far and whether it is done.
+    A study in `other_recipe` (paper_lib.study.recipe) shows as such, and its trials should not be in `trials`."""
+    rows, other_recipe = [], set(other_recipe)
     for name, target in targets.items():
         mine = trials[trials["study"] == name]
         n_complete = int((mine["state"] == "COMPLETE").sum())
         status = DONE if n_complete >= target else ("in progress" if len(mine) else "not started")
+        if name in other_recipe:
+            status = OTHER_RECIPE
         rows.append({"study": name, **dict(zip(KEYS, parse_study_name(name))), "target": target,
                      "complete": n_complete, "failed": int((mine["state"] == "FAIL").sum()), "status": status})
     return pd.DataFrame(rows)
@@ -80,8 +85,10 @@ def progress_caption(progress_table: pd.DataFrame) -> str:
     """How far the sweep is, for every caption: studies at their target and COMPLETE trials of all targets."""
     done = int((progress_table["status"] == DONE).sum())
     trials = int(progress_table[["complete", "target"]].min(axis=1).sum())
+    stale = int((progress_table["status"] == OTHER_RECIPE).sum())
+    older = f"; {stale} studies of an older recipe left out, to train again" if stale else ""
     return (f"{done} of {len(progress_table)} studies at their trial target, {trials} of "
-            f"{int(progress_table['target'].sum())} trials")
+            f"{int(progress_table['target'].sum())} trials{older}")
 
 
 def complete(df: pd.DataFrame) -> pd.DataFrame:

@@ -37,6 +37,7 @@ from paper_lib.scoring.ood_scores import score_dataset
 from paper_lib.ood.datasets import concat
 from paper_lib.scoring.metrics import detection_metrics
 from paper_lib.study.config import StudyConfig, StudySpec
+from paper_lib.study.recipe import RECORDED_KEYS
 from paper_lib.study.space import agent_kwargs, suggest_params
 
 #: Never write resume points for a trial: a killed trial is retried from its start.
@@ -122,10 +123,7 @@ def run_configuration(cfg: StudyConfig, spec: StudySpec, params: dict[str, Any],
              "trained_timesteps": config["trained_timesteps"],
              "final_training_reward": float(curve["reward"].iloc[-1]) if len(curve) else float("nan"),
              "auroc_measure": measure, **{f"auroc_{k}": v for k, v in aurocs.items()},
-             "config": json.dumps({k: config[k] for k in ("algo", "method", "env_id", "seed", "n_envs", "n_members",
-                                                           "dropout_p", "masksembles_scale", "hidden_sizes", "policy",
-                                                           "algo_kwargs", "inference", "total_timesteps")},
-                                  sort_keys=True, default=str)}
+             "config": json.dumps({k: config.get(k) for k in RECORDED_KEYS}, sort_keys=True, default=str)}
     return TrialResult(reward, auroc, attrs)
 
 

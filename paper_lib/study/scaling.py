@@ -7,17 +7,25 @@ hyperparameters and every hidden layer set to the width, Masksembles included.
 
     python -m paper_lib.study.scaling             # train every run not done yet, and evaluate it once it is
     python -m paper_lib.study.scaling --evaluate  # only evaluate trained runs that have no evaluation file yet
-    python -m paper_lib.study.scaling --list      # the runs and their folders
+    python -m paper_lib.study.scaling --list      # the runs, their folders and status
+    python -m paper_lib.study.scaling --env Walker2d-v5 --method masksembles --width 64  # only these runs
 
 A run's final reward is measured once, when it lands, and kept beside its checkpoint (final_evaluation.json,
 with the checkpoint's SHA-256): notebook 10 only reads these files, so a rebuild never steps an env and gives the
 same numbers on any CPU (MuJoCo's last float bits differ across CPUs and chaotic episodes amplify them).
+
+A run counts as trained only if its config.json is what params.yaml trains today (the env's recipe, the width,
+the budget: paper_lib.pipeline.landing's comparison). When an env's recipe changes (issue 38's Walker2d), its old
+runs show as "another recipe" in notebook 10 and are left out of every figure and table, and training moves
+each one aside (build/replaced/, outside results/) before training it again.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +37,7 @@ from paper_lib.common.io import write_json_atomic
 from paper_lib.common.provenance import file_digest
 from paper_lib.methods.networks import METHODS
 from paper_lib.pipeline.config import PARAMS_FILE, check_keys, read_params
+from paper_lib.pipeline.landing import differences, expected_for, trained_config
 from paper_lib.pipeline.layout import Layout
 from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
@@ -37,6 +46,8 @@ from paper_lib.study.space import agent_kwargs
 EVALUATION_FILE = "final_evaluation.json"
 #: The evaluation env's seed is this plus the run's seed (the training envs use the run's seed).
 EVAL_SEED_OFFSET = 10_000
+#: Where training moves a run of an older recipe before training it again (outside results/, kept for a look).
+REPLACED = Path("build/replaced")
 
 KEYS = ("widths", "methods", "seeds", "total_timesteps", "fixed", "eval_episodes")
 
@@ -114,14 +125,38 @@ def load_scaling_config(path: str | Path = PARAMS_FILE, profile: str | None = No
     return ScalingConfig(profile, budget, runs, steps, dict(raw["fixed"]), episodes, hps, path.parent)
 
 
+def recipe_differences(cfg: ScalingConfig, run: ScalingRun) -> list[str]:
+    """Every training setting in which the run's finished checkpoint differs from what params.yaml trains today
+    (empty: it is this run); raises FileNotFoundError while the run has no finished checkpoint."""
+    expected = expected_for(run.env_id, run.method, run.seed, cfg.total_timesteps, cfg.agent_kwargs(run))
+    return differences(trained_config(cfg.run_dir(run)), expected)
+
+
+def run_status(cfg: ScalingConfig, run: ScalingRun) -> str:
+    """TRAINED, NOT_TRAINED, or OTHER_RECIPE (finished, but trained with settings params.yaml no longer gives)."""
+    try:
+        return OTHER_RECIPE if recipe_differences(cfg, run) else TRAINED
+    except FileNotFoundError:
+        return NOT_TRAINED
+
+
 def is_done(cfg: ScalingConfig, run: ScalingRun) -> bool:
-    """A finished checkpoint of this run at this budget and width (so a re-run trains only what is missing)."""
-    config_file = cfg.run_dir(run) / "config.json"
-    if not config_file.is_file():
-        return False
-    config = json.loads(config_file.read_text())
-    wanted = cfg.total_timesteps or cfg.hyperparameters[run.env_id]["total_timesteps"]
-    return config.get("total_timesteps") == wanted and list(config.get("hidden_sizes") or [])[:1] == [run.width]
+    """A finished checkpoint of this run trained as params.yaml trains it (so a re-run trains only the rest)."""
+    return run_status(cfg, run) == TRAINED
+
+
+def move_aside(cfg: ScalingConfig, run: ScalingRun) -> Path:
+    """Move a run of another recipe (and any resume point of it) under build/replaced/, so it is trained afresh."""
+    folder = cfg.run_dir(run)
+    target = cfg.root / REPLACED / folder.relative_to(cfg.root)
+    if target.exists():
+        raise FileExistsError(f"{target} already holds a replaced run; look at it and delete it, then run again")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    resume = folder.parent / f".{folder.name}.resume"
+    if resume.exists():
+        shutil.move(resume, target.parent / resume.name)
+    shutil.move(folder, target)
+    return target
 
 
 def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]:
@@ -130,7 +165,11 @@ def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]
 
     done = []
     for run in cfg.runs:
-        if not is_done(cfg, run):
+        status = run_status(cfg, run)
+        if status == OTHER_RECIPE:
+            log(f"scaling: {run} was trained with another recipe ({'; '.join(recipe_differences(cfg, run))}); "
+                f"moved to {move_aside(cfg, run)}")
+        if status != TRAINED:
             log(f"scaling: training {run}")
             done.append(train_run(run.env_id, run.method, run.seed, cfg.run_dir(run),
                                   total_timesteps=cfg.total_timesteps, agent_kwargs=cfg.agent_kwargs(run),
@@ -170,20 +209,22 @@ def evaluate_missing(cfg: ScalingConfig, log=print) -> list[Path]:
     return written
 
 
-#: `progress` status of a run with a finished checkpoint, and of one without.
-TRAINED, NOT_TRAINED = "trained", "not trained"
+#: `progress` status of a run trained as params.yaml says, of one not finished, and of one of an older recipe.
+TRAINED, NOT_TRAINED, OTHER_RECIPE = "trained", "not trained", "another recipe"
 
 
 def progress(cfg: ScalingConfig) -> pd.DataFrame:
     """Every run with its status: the notebook draws the trained ones while the others still train (hours)."""
     rows = [{"env": r.env_id, "method": r.method, "width": r.width, "seed": r.seed,
-             "status": TRAINED if is_done(cfg, r) else NOT_TRAINED, "folder": str(cfg.run_dir(r))} for r in cfg.runs]
+             "status": run_status(cfg, r), "folder": str(cfg.run_dir(r))} for r in cfg.runs]
     return pd.DataFrame(rows, columns=["env", "method", "width", "seed", "status", "folder"])
 
 
 def progress_caption(status: pd.DataFrame) -> str:
-    """'7 of 20 scaling runs trained', for captions and titles."""
-    return f"{int((status['status'] == TRAINED).sum())} of {len(status)} scaling runs trained"
+    """'7 of 20 scaling runs trained', for captions and titles (and how many wait with an older recipe)."""
+    stale = int((status["status"] == OTHER_RECIPE).sum())
+    older = f" ({stale} more of an older recipe, to train again)" if stale else ""
+    return f"{int((status['status'] == TRAINED).sum())} of {len(status)} scaling runs trained{older}"
 
 
 def trained_runs(cfg: ScalingConfig) -> list[ScalingRun]:
@@ -283,6 +324,17 @@ def final_table(final: pd.DataFrame) -> pd.DataFrame:
                                                                    episodes="size").reset_index())
 
 
+def select(cfg: ScalingConfig, env_id: str | None = None, method: str | None = None, width: int | None = None,
+           seed: int | None = None) -> ScalingConfig:
+    """The config restricted to the runs matching every given filter (a training queue trains one run a line)."""
+    wanted = {"env_id": env_id, "method": method, "width": width, "seed": seed}
+    runs = [r for r in cfg.runs if all(v is None or getattr(r, k) == v for k, v in wanted.items())]
+    if not runs:
+        given = ", ".join(f"{k} {v}" for k, v in wanted.items() if v is not None)
+        raise ValueError(f"no scaling run of budget {cfg.budget!r} has {given}; `--list` shows them all")
+    return dataclasses.replace(cfg, runs=runs)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Train appendix E's scaling runs (resumable).")
     parser.add_argument("--params", default="params.yaml")
@@ -290,13 +342,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--list", action="store_true", help="print the runs and their folders")
     parser.add_argument("--evaluate", action="store_true", help="only evaluate trained runs that lack an evaluation")
+    parser.add_argument("--env", help="only the runs of this env")
+    parser.add_argument("--method", help="only the runs of this method")
+    parser.add_argument("--width", type=int, help="only the runs of this width")
+    parser.add_argument("--seed", type=int, help="only the runs of this seed")
     args = parser.parse_args(argv)
     try:
-        cfg = load_scaling_config(args.params, args.profile)
+        cfg = select(load_scaling_config(args.params, args.profile), args.env, args.method, args.width, args.seed)
         if args.list:
             for run in cfg.runs:
                 print(f"{run.env_id} {run.method} width {run.width} seed {run.seed}: {cfg.run_dir(run)} "
-                      f"({'done' if is_done(cfg, run) else 'to train'})")
+                      f"({run_status(cfg, run)})")
             return
         if args.evaluate:
             evaluate_missing(cfg)
@@ -304,7 +360,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.threads < 1:
             raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")
         train_missing(cfg, args.threads)
-    except (ValueError, FileNotFoundError) as err:
+    except (ValueError, FileNotFoundError, FileExistsError) as err:
         parser.exit(2, f"error: {err}\n")
 
 

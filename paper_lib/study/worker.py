@@ -3,6 +3,7 @@
     python -m paper_lib.study.worker --study ppo-HalfCheetah-v5-masksembles --trials 24
     python -m paper_lib.study.worker --study ppo-HalfCheetah-v5-masksembles --storage postgresql://u:p@host/db --trials 190
     python -m paper_lib.study.worker --all            # every study of the profile in turn (what the DVC stage runs)
+    python -m paper_lib.study.worker --study ppo-Walker2d-v5-baseline --replace-other-recipe  # its env's recipe changed
 
 Start the same command on as many machines (or cores) as you like: they share the study
 through the storage. `--trials N` is the study's target of COMPLETE trials, not a per-worker
@@ -18,10 +19,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shutil
 import signal
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import optuna
@@ -32,6 +35,7 @@ from optuna.trial import FrozenTrial, TrialState
 
 from paper_lib.study.config import StudyConfig, StudySpec, load_study_config
 from paper_lib.study.objective import Objective
+from paper_lib.study.recipe import study_differences
 from paper_lib.study.storage import experimental_ok, open_storage
 
 DIRECTIONS = ("maximize", "maximize")
@@ -75,6 +79,11 @@ def open_study(cfg: StudyConfig, spec: StudySpec, storage: RDBStorage, sampler_s
         raise ValueError(f"study {spec.name!r} in this storage was made with other settings ({differs}); its trials "
                          "would not be comparable. Use another storage, or delete it first: optuna delete-study "
                          f"--study-name {spec.name} --storage <URL>")
+    wrong = study_differences(cfg, spec, study)
+    if wrong:  # the env's recipe changed since (paper_lib/study/recipe.py)
+        raise ValueError(f"study {spec.name!r} in this storage holds trials of another recipe ({wrong[0]}); new trials "
+                         "would be mixed with them. Train it again: optuna delete-study --study-name "
+                         f"{spec.name} --storage <URL> (copy the database first to keep the old trials)")
     return study
 
 
@@ -184,6 +193,31 @@ def _describe(name: str, trial: FrozenTrial) -> str:
     return f"{name}: trial {trial.number} {trial.state.name} {reason[:300]}"
 
 
+def replace_other_recipe(cfg: StudyConfig, name: str, storage_url: str | None = None,
+                         log: Callable[[str], None] = print) -> Path | None:
+    """Delete study `name` if it holds trials of another recipe (its env's recipe changed since), after copying the
+    SQLite database under build/replaced/; return the copy, or None where there was nothing to replace."""
+    url = storage_url or cfg.default_storage_url()
+    if not url.startswith("sqlite:///"):
+        raise ValueError(f"--replace-other-recipe keeps a copy of the database first, which it can do for SQLite only; "
+                         f"for {url.split(':', 1)[0]} copy the study yourself (optuna copy-study), then delete it")
+    if name not in optuna.get_all_study_names(storage=url):
+        return None
+    spec = cfg.study(name)
+    wrong = study_differences(cfg, spec, optuna.load_study(study_name=name, storage=url))
+    if not wrong:
+        return None
+    database = Path(url.removeprefix("sqlite:///"))
+    copy = cfg.root / "build" / "replaced" / f"{database.stem}-before-{name}{database.suffix}"
+    if copy.exists():
+        raise ValueError(f"{copy} already holds a replaced copy; look at it and delete it, then run again")
+    copy.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(database, copy)
+    optuna.delete_study(study_name=name, storage=url)
+    log(f"{name}: its trials were of another recipe ({wrong[0]}); deleted, the database before is {copy}")
+    return copy
+
+
 def run_study(cfg: StudyConfig, name: str, storage_url: str | None = None, n_trials: int | None = None,
               max_failures: int | None = None, sampler_seed: int | None = None,
               log: Callable[[str], None] = print) -> optuna.Study:
@@ -216,6 +250,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-failures", type=int, default=None,
                         help="stop once this many trials failed by themselves (default: the trial target, at least 10)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per trial")
+    parser.add_argument("--replace-other-recipe", action="store_true",
+                        help="delete a study whose trials were trained with an older recipe of its env first (the "
+                             "SQLite file before is copied under build/replaced/), then train it again")
     args = parser.parse_args(argv)
     optuna.logging.set_verbosity(optuna.logging.ERROR)
     logging.getLogger("optuna").setLevel(logging.ERROR)
@@ -231,9 +268,11 @@ def main(argv: list[str] | None = None) -> None:
             return
         th.set_num_threads(args.threads)
         names = list(cfg.studies) if args.all else [cfg.study(args.study).name]
+        log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
         for name in names:
-            run_study(cfg, name, args.storage, args.trials, args.max_failures, args.sampler_seed,
-                      log=lambda line: print(line, file=sys.stderr, flush=True))
+            if args.replace_other_recipe:
+                replace_other_recipe(cfg, name, args.storage, log)
+            run_study(cfg, name, args.storage, args.trials, args.max_failures, args.sampler_seed, log=log)
     except (ValueError, StopStudy) as err:
         parser.exit(2 if isinstance(err, ValueError) else 1, f"error: {err}\n")
     except KeyboardInterrupt:

@@ -22,14 +22,21 @@ def _resume_point(tree: Path, seed: int, content: bytes) -> Path:
     return folder
 
 
+def _checkpoint(root: Path, seed: int, content: bytes) -> None:
+    """A finished run's model.zip at RUN/seed<seed> under root/results."""
+    folder = root / "results" / RUN / f"seed{seed}"
+    folder.mkdir(parents=True)
+    (folder / "model.zip").write_bytes(content)
+
+
 def test_save_then_restore_on_another_machine(tmp_path):
     old_machine, repo, new_machine = tmp_path / "frozen", tmp_path / "repo", tmp_path / "next"
     for root in (old_machine, repo, new_machine):
         (root / "results").mkdir(parents=True)
     _resume_point(old_machine, 0, b"in progress")
-    landed = _resume_point(old_machine, 1, b"finished")
-    (landed.parent / "seed1").mkdir()
-    (landed.parent / "seed1" / "model.zip").write_bytes(b"checkpoint")  # seed 1 has landed: nothing to carry
+    _resume_point(old_machine, 1, b"finished")
+    for root in (old_machine, repo):
+        _checkpoint(root, 1, b"checkpoint")  # seed 1 has landed: nothing to carry
     stale = repo / "results" / "resume_points" / RUN / "seed1"
     stale.mkdir(parents=True)
     (stale / "state.pkl").write_bytes(b"old")
@@ -47,12 +54,38 @@ def test_save_then_restore_on_another_machine(tmp_path):
     assert (back / "model.zip").read_bytes() == b"in progressmodel.zip"
 
 
+def test_a_finished_run_not_landed_yet_keeps_its_resume_point(tmp_path):
+    """Finished in the training tree, but the repository still holds the run it replaces (or none): its last resume
+    point is what lands it on another machine, so it is carried."""
+    tree, repo = tmp_path / "frozen", tmp_path / "repo"
+    _resume_point(tree, 1, b"finished")
+    _checkpoint(tree, 1, b"new checkpoint")
+    _checkpoint(repo, 1, b"the old recipe's checkpoint")
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    assert (repo / "results" / "resume_points" / RUN / "seed1" / "state.pkl").read_bytes() == b"finishedstate.pkl"
+
+
+def test_a_run_retrained_in_place_keeps_its_resume_point(tmp_path):
+    """The training tree still holds the older run (the repository's, byte for byte) that the run in progress will
+    replace: that is not a landing, and dropping the resume point would throw away hours of training."""
+    tree, repo = tmp_path / "frozen", tmp_path / "repo"
+    point = _resume_point(tree, 1, b"in progress")
+    _state(point, 2_000_000, 3600.0)
+    for root in (tree, repo):
+        _checkpoint(root, 1, b"the old recipe's checkpoint")
+        (root / "results" / RUN / "seed1" / "config.json").write_text('{"trained_timesteps": 1000000}')
+    assert _run("save", str(tree), str(repo)).returncode == 0
+    saved = repo / "results" / "resume_points" / RUN / "seed1" / "state.pkl"
+    assert pickle.loads(saved.read_bytes())["num_timesteps"] == 2_000_000
+    _state(point, 1_000_000, 1800.0)  # had it been this checkpoint's own resume point, it would have landed
+    assert _run("save", str(tree), str(repo)).returncode == 0 and not saved.exists()
+
+
 def test_keep_landed_carries_a_finished_run_to_extend_later(tmp_path):
     tree, repo = tmp_path / "frozen", tmp_path / "repo"
-    (repo / "results").mkdir(parents=True)
-    landed = _resume_point(tree, 1, b"finished")
-    (landed.parent / "seed1").mkdir()
-    (landed.parent / "seed1" / "model.zip").write_bytes(b"checkpoint")
+    _resume_point(tree, 1, b"finished")
+    for root in (tree, repo):
+        _checkpoint(root, 1, b"checkpoint")
     assert _run("save", str(tree), str(repo)).returncode == 0
     assert not (repo / "results" / "resume_points" / RUN / "seed1").exists()
     assert _run("save", "--keep-landed", str(tree), str(repo)).returncode == 0

@@ -3,7 +3,9 @@ server (pgserver), a worker killed with SIGKILL, and notebooks 09 and 10 through
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import json
 import os
 import shutil
 import signal
@@ -22,9 +24,10 @@ from optuna.trial import TrialState
 from paper_lib.study import analysis, scaling
 from paper_lib.study.config import load_study_config
 from paper_lib.study.objective import Objective, run_configuration
+from paper_lib.study.recipe import other_recipe_studies
 from paper_lib.study.space import agent_kwargs, parse_param
 from paper_lib.study.storage import check_url, local_postgres, open_storage
-from paper_lib.study.worker import StopStudy, open_study, run_study, run_worker
+from paper_lib.study.worker import StopStudy, open_study, replace_other_recipe, run_study, run_worker
 from paper_lib.study.worker import main as worker_main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -383,6 +386,37 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     with pytest.raises(ValueError, match=r"does not belong to this run \(width is 64, this run's is 96; "
                                          r"checkpoint_sha256 is"):
         scaling.read_evaluation(scaling_cfg, second)
+
+    # An env's recipe changes (issue 38's Walker2d): its scaling runs and studies of the old one are not read as
+    # the new one's. The scaling runs show as "another recipe" and training moves each aside before training it
+    # again; the studies are left out of notebook 9 and a worker refuses to add trials to them.
+    newer = copy.deepcopy(scaling_cfg.hyperparameters)
+    newer["Walker2d-v5"]["algo"]["gamma"] = 0.95
+    changed = dataclasses.replace(scaling_cfg, hyperparameters=newer)
+    assert scaling.progress(changed)["status"].eq(scaling.OTHER_RECIPE).all()
+    assert "gamma: trained with 0.99" in "; ".join(scaling.recipe_differences(changed, first))
+    scaling.train_missing(scaling.select(changed, width=first.width, method=first.method), log=lambda line: None)
+    assert scaling.run_status(changed, first) == scaling.TRAINED
+    assert scaling.run_status(scaling_cfg, first) == scaling.OTHER_RECIPE  # the retrained run is of the new recipe
+    replaced = root / scaling.REPLACED / scaling_cfg.run_dir(first).relative_to(root)
+    assert json.loads((replaced / "config.json").read_text())["algo_kwargs"]["gamma"] == 0.99  # kept, outside results/
+    with pytest.raises(ValueError, match="no scaling run of budget 'tiny' has width 1000"):
+        scaling.select(changed, width=1000)
+
+    assert other_recipe_studies(cfg, cfg.default_storage_url()) == {}
+    newer = copy.deepcopy(cfg.hyperparameters)
+    newer["HalfCheetah-v5"]["n_envs"] = 4
+    changed = dataclasses.replace(cfg, hyperparameters=newer)
+    older = other_recipe_studies(changed, changed.default_storage_url())
+    assert set(older) == set(cfg.studies) and "n_envs: trained with 8, params.yaml gives 4" in older[STUDY]
+    status = analysis.progress(pd.DataFrame(columns=analysis.TRIAL_COLUMNS), {STUDY: 2}, older)
+    assert status["status"].tolist() == [analysis.OTHER_RECIPE]
+    with pytest.raises(ValueError, match="holds trials of another recipe .*n_envs: trained with 8"):
+        run_study(changed, STUDY, sampler_seed=0, log=lambda line: None)
+    kept = replace_other_recipe(changed, STUDY, log=lambda line: None)  # what --replace-other-recipe does first
+    assert STUDY not in optuna.get_all_study_names(storage=cfg.default_storage_url())
+    assert STUDY in optuna.get_all_study_names(storage=f"sqlite:///{kept}")  # the old trials are kept, outside results/
+    assert replace_other_recipe(changed, STUDY, log=lambda line: None) is None  # nothing of another recipe left
 
 
 def replayed_rewards(cfg, run) -> list[float]:
