@@ -44,3 +44,15 @@
 .venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropout 2 results/paper/checkpoints/Ant-v5/mc_dropout/seed2
 .venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropconnect 2 results/paper/checkpoints/Ant-v5/mc_dropconnect/seed2
 .venv/bin/python -m paper_lib.agents.training Ant-v5 ensemble 2 results/paper/checkpoints/Ant-v5/ensemble/seed2
+# Ant's appendix-E scaling runs under the recipe its 1e7 runs use (200k steps, seed 0): they count once Ant's entry
+# moves into `hyperparameters` (until then notebook 10 keeps the printed recipe's runs); land as Walker2d's. Ant's
+# five studies follow that move: `python -m paper_lib.study.worker --study ppo-Ant-v5-<method> --sampler-seed 0
+# --replace-other-recipe` from a tree at or after it.
+.venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/paper/scaling/Ant-v5/baseline/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/paper/scaling/Ant-v5/baseline/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 0 results/paper/scaling/Ant-v5/masksembles/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 0 results/paper/scaling/Ant-v5/masksembles/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropout 0 results/paper/scaling/Ant-v5/mc_dropout/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropout 0 results/paper/scaling/Ant-v5/mc_dropout/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 ensemble 0 results/paper/scaling/Ant-v5/ensemble/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
+.venv/bin/python -m paper_lib.agents.training Ant-v5 ensemble 0 results/paper/scaling/Ant-v5/ensemble/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
