@@ -78,7 +78,9 @@ else
   [ -d "$store" ] || { echo "no resume points in $store"; exit 0; }
   while IFS= read -r -d '' state; do
     saved=$(dirname "$state"); rel=${saved#"$store/"}
-    if [ -f "$tree/results/$rel/model.zip" ]; then echo "note $rel has landed: its resume point extends it"; fi
+    if [ -f "$tree/results/$rel/model.zip" ]; then  # a landed probe to extend, or the older run a retraining replaces
+      echo "note $rel has a checkpoint: training continues from this resume point and replaces it when it ends"
+    fi
     target="$tree/results/$(dirname "$rel")/.$(basename "$rel").resume"
     mkdir -p "$target" && cp -r "$saved/." "$target/"
     echo "restored $rel -> $target"
