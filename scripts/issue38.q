@@ -6,8 +6,8 @@
 # lines are gone); what follows them here is the env's scaling runs and studies under its new recipe, then Ant,
 # whose baseline seed 0 resumed from the 2M probe Ant-v5/baseline-zoo-n4.
 # Walker2d's appendix-E scaling runs under its landed recipe (params.yaml study.scaling.cpu: 200k steps, seed 0; the
-# old recipe's runs show as "another recipe" in notebook 10); land: copy each finished run folder into the
-# repository, then `python -m paper_lib.study.scaling --evaluate` plays its final evaluation once
+# old recipe's runs show as "another recipe" in notebook 10); land with `python -m paper_lib.study.scaling --land TREE` (copies
+# each run finished in TREE and trained as params.yaml says, then plays its final evaluation once)
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w96/seed0 --timesteps 200000 --hp hidden_sizes=[96,96]
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]

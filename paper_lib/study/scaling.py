@@ -9,6 +9,7 @@ hyperparameters and every hidden layer set to the width, Masksembles included.
     python -m paper_lib.study.scaling --evaluate  # only evaluate trained runs that have no evaluation file yet
     python -m paper_lib.study.scaling --list      # the runs, their folders and status
     python -m paper_lib.study.scaling --env Walker2d-v5 --method masksembles --width 64  # only these runs
+    python -m paper_lib.study.scaling --land ../frozen  # copy in the runs a training queue finished there
 
 A run's final reward is measured once, when it lands, and kept beside its checkpoint (final_evaluation.json,
 with the checkpoint's SHA-256): notebook 10 only reads these files, so a rebuild never steps an env and gives the
@@ -180,6 +181,25 @@ def train_missing(cfg: ScalingConfig, threads: int = 1, log=print) -> list[Path]
     return done
 
 
+def land_from(cfg: ScalingConfig, tree: Path, log=print) -> list[ScalingRun]:
+    """Land the runs trained outside (a training queue's worktree `tree`): copy each run finished there and trained as
+    params.yaml trains it, where this tree's is not, after moving this tree's folder aside; then evaluate it once."""
+    if not (Path(tree) / "results").is_dir():
+        raise ValueError(f"{tree} has no results/ folder: give the root of the worktree the runs were trained in")
+    there = dataclasses.replace(cfg, root=Path(tree))
+    landed = []
+    for run in cfg.runs:
+        if run_status(cfg, run) == TRAINED or run_status(there, run) != TRAINED:
+            continue
+        if cfg.run_dir(run).exists():
+            log(f"scaling: {run}: the run here moved to {move_aside(cfg, run)}")
+        shutil.copytree(there.run_dir(run), cfg.run_dir(run))
+        evaluate_run(cfg, run)
+        log(f"scaling: landed {run} from {there.run_dir(run)}")
+        landed.append(run)
+    return landed
+
+
 def evaluate_run(cfg: ScalingConfig, run: ScalingRun) -> Path:
     """Play the run's deterministic evaluation episodes once and keep their rewards beside the checkpoint."""
     from paper_lib.agents.checkpoints import load_checkpoint
@@ -342,6 +362,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--list", action="store_true", help="print the runs and their folders")
     parser.add_argument("--evaluate", action="store_true", help="only evaluate trained runs that lack an evaluation")
+    parser.add_argument("--land", metavar="TREE", help="copy in every run finished in TREE (a training worktree) as "
+                        "params.yaml trains it, where this tree's is not, and evaluate it")
     parser.add_argument("--env", help="only the runs of this env")
     parser.add_argument("--method", help="only the runs of this method")
     parser.add_argument("--width", type=int, help="only the runs of this width")
@@ -356,6 +378,10 @@ def main(argv: list[str] | None = None) -> None:
             return
         if args.evaluate:
             evaluate_missing(cfg)
+            return
+        if args.land:
+            landed = land_from(cfg, Path(args.land))
+            print(f"{len(landed)} run(s) landed; {progress_caption(progress(cfg))}")
             return
         if args.threads < 1:
             raise ValueError(f"--threads must be a positive number of torch threads, got {args.threads}")

@@ -402,6 +402,15 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     assert json.loads((replaced / "config.json").read_text())["algo_kwargs"]["gamma"] == 0.99  # kept, outside results/
     with pytest.raises(ValueError, match="no scaling run of budget 'tiny' has width 1000"):
         scaling.select(changed, width=1000)
+    # a run trained elsewhere (a training queue's worktree) lands: copied in over the older one, then evaluated once
+    second_run = scaling.select(changed, width=second.width, method=second.method)
+    elsewhere = dataclasses.replace(second_run, root=root / "frozen")
+    scaling.train_missing(elsewhere, log=lambda line: None)
+    assert scaling.land_from(second_run, root / "frozen", log=lambda line: None) == [second]
+    assert scaling.run_status(changed, second) == scaling.TRAINED and scaling.is_evaluated(changed, second)
+    assert scaling.land_from(second_run, root / "frozen", log=lambda line: None) == []  # nothing left to land
+    with pytest.raises(ValueError, match="has no results/ folder"):
+        scaling.land_from(second_run, root / "nowhere")
 
     assert other_recipe_studies(cfg, cfg.default_storage_url()) == {}
     newer = copy.deepcopy(cfg.hyperparameters)
