@@ -3,23 +3,10 @@
 # points between machines: scripts/resume_points.sh save TREE / restore REPO TREE. A run whose resume point is
 # already at its budget lands at once. Land a whole env's 15 runs together (scripts/land_env.py, then `make
 # reproduce`): one recipe per env column. Walker2d's 15 runs and 5 independent members landed on 2026-11-28 (their
-# lines are gone); what follows them here is the env's scaling runs and studies under its new recipe, then Ant,
-# whose baseline seed 0 resumed from the 2M probe Ant-v5/baseline-zoo-n4.
-# Walker2d's appendix-E scaling runs under its landed recipe (params.yaml study.scaling.cpu: 200k steps, seed 0; the
-# old recipe's runs show as "another recipe" in notebook 10); land with `python -m paper_lib.study.scaling --land TREE` (copies
-# each run finished in TREE and trained as params.yaml says, then plays its final evaluation once)
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w96/seed0 --timesteps 200000 --hp hidden_sizes=[96,96]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 0 results/paper/scaling/Walker2d-v5/baseline/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 0 results/paper/scaling/Walker2d-v5/masksembles/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 0 results/paper/scaling/Walker2d-v5/masksembles/w96/seed0 --timesteps 200000 --hp hidden_sizes=[96,96]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 0 results/paper/scaling/Walker2d-v5/masksembles/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 0 results/paper/scaling/Walker2d-v5/mc_dropout/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 0 results/paper/scaling/Walker2d-v5/mc_dropout/w96/seed0 --timesteps 200000 --hp hidden_sizes=[96,96]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 0 results/paper/scaling/Walker2d-v5/mc_dropout/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 0 results/paper/scaling/Walker2d-v5/ensemble/w64/seed0 --timesteps 200000 --hp hidden_sizes=[64,64]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 0 results/paper/scaling/Walker2d-v5/ensemble/w96/seed0 --timesteps 200000 --hp hidden_sizes=[96,96]
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 0 results/paper/scaling/Walker2d-v5/ensemble/w128/seed0 --timesteps 200000 --hp hidden_sizes=[128,128]
+# lines are gone), and so did its 12 appendix-E scaling runs (`python -m paper_lib.study.scaling --land TREE` copies in
+# each scaling run finished in TREE and trained as params.yaml says, then plays its final evaluation once). What
+# follows is the env's five studies under its new recipe, then Ant, whose baseline seed 0 resumed from the 2M probe
+# Ant-v5/baseline-zoo-n4.
 # Walker2d's five studies under its landed recipe (n_envs 4 and reward normalization enter every trial; the old
 # studies show as "another recipe" in notebook 9). Needs a tree at or after the commit that landed Walker2d;
 # land by copying the tree's results/paper/studies/studies.db into the repository once all five are done.

@@ -60,6 +60,9 @@ class ScalingRun:
     width: int
     seed: int
 
+    def __str__(self) -> str:
+        return f"{self.env_id} {self.method} width {self.width} seed {self.seed}"
+
 
 @dataclass(frozen=True)
 class ScalingConfig:
@@ -373,8 +376,7 @@ def main(argv: list[str] | None = None) -> None:
         cfg = select(load_scaling_config(args.params, args.profile), args.env, args.method, args.width, args.seed)
         if args.list:
             for run in cfg.runs:
-                print(f"{run.env_id} {run.method} width {run.width} seed {run.seed}: {cfg.run_dir(run)} "
-                      f"({run_status(cfg, run)})")
+                print(f"{run}: {cfg.run_dir(run)} ({run_status(cfg, run)})")
             return
         if args.evaluate:
             evaluate_missing(cfg)
