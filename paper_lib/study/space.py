@@ -117,7 +117,9 @@ def agent_kwargs(params: dict[str, Any], fixed: dict[str, Any], hp: dict[str, An
 
     `hp` is the env's hyperparameter entry; a copy is edited: `width` replaces every hidden
     layer's width (for every method, Masksembles included, so the methods are compared at
-    the same sampled width), `activation_fn` and `log_std_init` the policy settings.
+    the same sampled width), `activation_fn` and `log_std_init` the policy settings. A sampled member
+    count that does not divide the recipe's `n_envs` raises it to the next multiple (each member acts in
+    its own env group): Walker2d's 4 envs become 8 for k = 8, so every env searches the same space.
     """
     hp = copy.deepcopy(hp)
     settings = {**params, **fixed}
@@ -133,5 +135,8 @@ def agent_kwargs(params: dict[str, Any], fixed: dict[str, Any], hp: dict[str, An
             kwargs[key] = value
         else:
             overrides[key] = value
+    members = kwargs.get("n_members")
+    if members and hp.get("n_envs") and hp["n_envs"] % members:
+        hp["n_envs"] = -(-hp["n_envs"] // members) * members
     kwargs["overrides"] = overrides
     return kwargs

@@ -142,6 +142,12 @@ def test_sampled_settings_reach_make_agent(cfg):
     assert config["algo_kwargs"]["learning_rate"] == 1e-4 and config["algo_kwargs"]["clip_range"] == 0.3
     assert config["algo_kwargs"]["n_steps"] == 16  # the tiny budget's fixed setting
     model.env.close()
+    # a member count the recipe's envs cannot give each its own group raises n_envs (Walker2d: 4 envs, k = 8)
+    walker = cfg.hyperparameters["Walker2d-v5"]
+    assert walker["n_envs"] == 4
+    assert agent_kwargs({"n_members": 8}, {}, walker)["hyperparameters"]["n_envs"] == 8
+    assert agent_kwargs({"n_members": 2}, {}, walker)["hyperparameters"]["n_envs"] == 4
+    assert agent_kwargs({}, {}, walker)["hyperparameters"]["n_envs"] == 4 and walker["n_envs"] == 4
 
 
 def test_pareto_front_and_hypervolume():
