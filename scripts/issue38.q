@@ -9,7 +9,7 @@
 # Ant-v5/baseline-zoo-n4.
 # Walker2d's five studies under its landed recipe (n_envs 4 and reward normalization enter every trial; the old
 # studies show as "another recipe" in notebook 9). Needs a tree at or after the commit that landed Walker2d;
-# land by copying the tree's results/paper/studies/studies.db into the repository once all five are done.
+# land each one done with `python -m paper_lib.study.worker --all --land-from sqlite:///TREE/results/paper/studies/studies.db`.
 .venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-baseline --sampler-seed 0 --replace-other-recipe
 .venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-masksembles --sampler-seed 0 --replace-other-recipe
 .venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-mc_dropout --sampler-seed 0 --replace-other-recipe

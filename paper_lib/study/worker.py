@@ -4,6 +4,7 @@
     python -m paper_lib.study.worker --study ppo-HalfCheetah-v5-masksembles --storage postgresql://u:p@host/db --trials 190
     python -m paper_lib.study.worker --all            # every study of the profile in turn (what the DVC stage runs)
     python -m paper_lib.study.worker --study ppo-Walker2d-v5-baseline --replace-other-recipe  # its env's recipe changed
+    python -m paper_lib.study.worker --all --land-from sqlite:///../frozen/results/paper/studies/studies.db
 
 Start the same command on as many machines (or cores) as you like: they share the study
 through the storage. `--trials N` is the study's target of COMPLETE trials, not a per-worker
@@ -218,6 +219,27 @@ def replace_other_recipe(cfg: StudyConfig, name: str, storage_url: str | None = 
     return copy
 
 
+def land_study(cfg: StudyConfig, name: str, source_url: str, storage_url: str | None = None,
+               log: Callable[[str], None] = print) -> bool:
+    """Copy study `name` from `source_url` (a training worktree's database) into this storage once it is done there
+    (its trial target of COMPLETE trials, every trial of today's recipe) and this storage's is not; a study of another
+    recipe here is replaced (replace_other_recipe keeps a copy). True if it landed."""
+    url = storage_url or cfg.default_storage_url()
+    spec = cfg.study(name)
+    if name not in optuna.get_all_study_names(storage=source_url):
+        return False
+    source = optuna.load_study(study_name=name, storage=source_url)
+    done = sum(t.state == TrialState.COMPLETE for t in source.get_trials(deepcopy=False))
+    if done < spec.n_trials or study_differences(cfg, spec, source):
+        return False
+    replace_other_recipe(cfg, name, url, log)
+    if name in optuna.get_all_study_names(storage=url):
+        return False  # already of today's recipe here: nothing to land
+    optuna.copy_study(from_study_name=name, from_storage=source_url, to_storage=url)
+    log(f"{name}: landed {done} COMPLETE trials from {source_url}")
+    return True
+
+
 def run_study(cfg: StudyConfig, name: str, storage_url: str | None = None, n_trials: int | None = None,
               max_failures: int | None = None, sampler_seed: int | None = None,
               log: Callable[[str], None] = print) -> optuna.Study:
@@ -250,6 +272,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-failures", type=int, default=None,
                         help="stop once this many trials failed by themselves (default: the trial target, at least 10)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per trial")
+    parser.add_argument("--land-from", metavar="URL", help="copy in the studies done in this database (a training "
+                        "worktree's) where this storage's are missing or of another recipe, instead of running trials")
     parser.add_argument("--replace-other-recipe", action="store_true",
                         help="delete a study whose trials were trained with an older recipe of its env first (the "
                              "SQLite file before is copied under build/replaced/), then train it again")
@@ -269,6 +293,10 @@ def main(argv: list[str] | None = None) -> None:
         th.set_num_threads(args.threads)
         names = list(cfg.studies) if args.all else [cfg.study(args.study).name]
         log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+        if args.land_from:
+            landed = [name for name in names if land_study(cfg, name, args.land_from, args.storage, log)]
+            print(f"{len(landed)} stud{'y' if len(landed) == 1 else 'ies'} landed: {landed}")
+            return
         for name in names:
             if args.replace_other_recipe:
                 replace_other_recipe(cfg, name, args.storage, log)

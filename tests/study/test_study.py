@@ -27,7 +27,8 @@ from paper_lib.study.objective import Objective, run_configuration
 from paper_lib.study.recipe import other_recipe_studies
 from paper_lib.study.space import agent_kwargs, parse_param
 from paper_lib.study.storage import check_url, local_postgres, open_storage
-from paper_lib.study.worker import StopStudy, open_study, replace_other_recipe, run_study, run_worker
+from paper_lib.study.worker import (StopStudy, land_study, open_study, replace_other_recipe, run_study,
+                                   run_worker)
 from paper_lib.study.worker import main as worker_main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -420,18 +421,24 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
 
     assert other_recipe_studies(cfg, cfg.default_storage_url()) == {}
     newer = copy.deepcopy(cfg.hyperparameters)
-    newer["HalfCheetah-v5"]["n_envs"] = 4
+    newer["HalfCheetah-v5"]["normalize_obs"] = False
     changed = dataclasses.replace(cfg, hyperparameters=newer)
     older = other_recipe_studies(changed, changed.default_storage_url())
-    assert set(older) == set(cfg.studies) and "n_envs: trained with 8, params.yaml gives 4" in older[STUDY]
+    assert set(older) == set(cfg.studies) and "normalize_obs: trained with True, params.yaml gives False" in older[STUDY]
     status = analysis.progress(pd.DataFrame(columns=analysis.TRIAL_COLUMNS), {STUDY: 2}, older)
     assert status["status"].tolist() == [analysis.OTHER_RECIPE]
-    with pytest.raises(ValueError, match="holds trials of another recipe .*n_envs: trained with 8"):
+    with pytest.raises(ValueError, match="holds trials of another recipe .*normalize_obs: trained with True"):
         run_study(changed, STUDY, sampler_seed=0, log=lambda line: None)
     kept = replace_other_recipe(changed, STUDY, log=lambda line: None)  # what --replace-other-recipe does first
     assert STUDY not in optuna.get_all_study_names(storage=cfg.default_storage_url())
     assert STUDY in optuna.get_all_study_names(storage=f"sqlite:///{kept}")  # the old trials are kept, outside results/
     assert replace_other_recipe(changed, STUDY, log=lambda line: None) is None  # nothing of another recipe left
+    # a study done in another worktree's database lands here (the old one was replaced above); twice lands nothing
+    elsewhere = f"sqlite:///{root / 'elsewhere.db'}"
+    run_study(changed, STUDY, storage_url=elsewhere, sampler_seed=0, log=lambda line: None)
+    assert land_study(changed, STUDY, elsewhere, log=lambda line: None)
+    assert len(_trials(cfg.default_storage_url())) == len(_trials(elsewhere))
+    assert not land_study(changed, STUDY, elsewhere, log=lambda line: None)
 
 
 def replayed_rewards(cfg, run) -> list[float]:
