@@ -33,6 +33,7 @@ class MemberOrderedRolloutBuffer(RolloutBuffer):
         """
         total = self.buffer_size * self.n_envs
         check_member_layout(self.n_envs, self.n_members, batch_size, self.buffer_size)
+        batch_size = min(batch_size, total)  # a larger batch is one minibatch of the whole rollout, as in SB3
         block = total // self.n_members
         chunk = batch_size // self.n_members
         per_member = [g * block + np.random.permutation(block) for g in range(self.n_members)]
@@ -43,7 +44,7 @@ class MemberOrderedRolloutBuffer(RolloutBuffer):
     def get(self, batch_size: int | None = None) -> Generator[RolloutBufferSamples, None, None]:
         assert self.full, ""
         total = self.buffer_size * self.n_envs
-        batch_size = total if batch_size is None else batch_size
+        batch_size = total if batch_size is None else min(batch_size, total)
         indices = self.member_ordered_indices(batch_size)
         if not self.generator_ready:
             for name in ("observations", "actions", "values", "log_probs", "advantages", "returns"):

@@ -15,7 +15,11 @@ GROUPS_TAG = "paper_lib_member_groups"
 
 
 def check_member_layout(n_envs: int, n_members: int, batch_size: int | None = None, n_steps: int | None = None) -> None:
-    """Raise one clear error when the envs or minibatches cannot be split evenly over members."""
+    """Raise one clear error when the envs or minibatches cannot be split evenly over members.
+
+    A batch_size of at least the rollout (n_steps*n_envs) means one minibatch of the whole rollout, as SB3's
+    RolloutBuffer makes it for the baseline; it splits evenly because the envs do (Walker2d's 4 envs with a
+    sampled n_steps 64 and batch_size 512)."""
     for name, value in (("n_envs", n_envs), ("n_members", n_members), ("batch_size", batch_size), ("n_steps", n_steps)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise ValueError(f"{name}={value!r} must be an integer")
@@ -28,7 +32,7 @@ def check_member_layout(n_envs: int, n_members: int, batch_size: int | None = No
         raise ValueError(f"batch_size={batch_size} and n_steps={n_steps} must be positive integers")
     if n_envs % n_members:
         raise ValueError(f"n_envs={n_envs} is not a multiple of n_members={n_members}; each member needs an equal env group")
-    if batch_size is not None:
+    if batch_size is not None and not (n_steps is not None and batch_size >= n_steps * n_envs):
         if batch_size % n_members:
             raise ValueError(f"batch_size={batch_size} is not a multiple of n_members={n_members}; "
                              "every minibatch is split into k equal chunks")

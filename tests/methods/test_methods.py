@@ -462,3 +462,18 @@ def test_act_with_uncertainty_equals_predict_plus_uncertainty(env_id):
         np.testing.assert_allclose(scores[name], value, rtol=1e-6)
     single, _ = act_with_uncertainty(model.policy, obs[0], deterministic=True)
     np.testing.assert_array_equal(single, model.predict(obs[0], deterministic=True)[0])
+
+
+@pytest.mark.parametrize("assignment", ["shared", "own"])
+def test_a_batch_larger_than_the_rollout_is_one_minibatch_split_over_members(assignment):
+    # SB3 trains the baseline on one minibatch of the whole rollout when batch_size exceeds it (Walker2d's
+    # 4 envs with a sampled n_steps 64 and batch_size 512); the member methods do the same instead of refusing.
+    model = make_agent("ppo", "ensemble", "CartPole-v1", 0, n_envs=4, n_members=2, assignment=assignment,
+                       overrides={"n_steps": 16, "batch_size": 128, "n_epochs": 1}).learn(64)
+    assert model.num_timesteps == 64 and model.rollout_buffer.buffer_size * 4 == 64
+    if assignment == "own":
+        buffer = model.rollout_buffer
+        (minibatch,) = buffer.member_ordered_indices(128).reshape(1, -1)  # one minibatch: the whole rollout
+        assert sorted(minibatch.tolist()) == list(range(64))
+        for j, chunk in enumerate(minibatch.reshape(2, -1)):  # flat index = env * n_steps + step
+            assert (member_of_env(chunk // buffer.buffer_size, 4, 2) == j).all()
