@@ -41,6 +41,8 @@ from pathlib import Path
 Run = tuple[str, str, int]
 
 RESULTS = "results"
+#: Where runs and study databases of another recipe are moved before they are trained again (outside results/).
+REPLACED = "build/replaced"
 #: The per-run artifacts, in pipeline order, and the folder that holds each kind.
 RUN_FOLDERS = {"checkpoint": "checkpoints", "dataset": "datasets", "evaluation": "evaluations", "scores": "scores"}
 #: The two trees of notebook 11 beside the main one: independently trained members, and `own` runs.

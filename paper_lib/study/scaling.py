@@ -39,7 +39,7 @@ from paper_lib.common.provenance import file_digest
 from paper_lib.methods.networks import METHODS
 from paper_lib.pipeline.config import PARAMS_FILE, check_keys, read_params
 from paper_lib.pipeline.landing import differences, expected_for, trained_config
-from paper_lib.pipeline.layout import Layout
+from paper_lib.pipeline.layout import REPLACED, Layout
 from paper_lib.study.config import budget_label, resolve_budget
 from paper_lib.study.space import agent_kwargs
 
@@ -47,8 +47,6 @@ from paper_lib.study.space import agent_kwargs
 EVALUATION_FILE = "final_evaluation.json"
 #: The evaluation env's seed is this plus the run's seed (the training envs use the run's seed).
 EVAL_SEED_OFFSET = 10_000
-#: Where training moves a run of an older recipe before training it again (outside results/, kept for a look).
-REPLACED = Path("build/replaced")
 
 KEYS = ("widths", "methods", "seeds", "total_timesteps", "fixed", "eval_episodes")
 

@@ -35,6 +35,7 @@ from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback, fail_s
 from optuna.trial import FrozenTrial, TrialState
 
 from paper_lib.study.config import StudyConfig, StudySpec, load_study_config
+from paper_lib.pipeline.layout import REPLACED
 from paper_lib.study.objective import Objective
 from paper_lib.study.recipe import study_differences
 from paper_lib.study.storage import experimental_ok, open_storage
@@ -209,7 +210,7 @@ def replace_other_recipe(cfg: StudyConfig, name: str, storage_url: str | None = 
     if not wrong:
         return None
     database = Path(url.removeprefix("sqlite:///"))
-    copy = cfg.root / "build" / "replaced" / f"{database.stem}-before-{name}{database.suffix}"
+    copy = cfg.root / REPLACED / f"{database.stem}-before-{name}{database.suffix}"
     if copy.exists():
         raise ValueError(f"{copy} already holds a replaced copy; look at it and delete it, then run again")
     copy.parent.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ import pandas as pd
 import pytest
 from optuna.trial import TrialState
 
+from paper_lib.pipeline.layout import REPLACED
 from paper_lib.study import analysis, scaling
 from paper_lib.study.config import load_study_config
 from paper_lib.study.objective import Objective, run_configuration
@@ -405,7 +406,7 @@ def test_study_and_scaling_notebooks_run_at_tiny(root, cfg):
     scaling.train_missing(scaling.select(changed, width=first.width, method=first.method), log=lambda line: None)
     assert scaling.run_status(changed, first) == scaling.TRAINED
     assert scaling.run_status(scaling_cfg, first) == scaling.OTHER_RECIPE  # the retrained run is of the new recipe
-    replaced = root / scaling.REPLACED / scaling_cfg.run_dir(first).relative_to(root)
+    replaced = root / REPLACED / scaling_cfg.run_dir(first).relative_to(root)
     assert json.loads((replaced / "config.json").read_text())["algo_kwargs"]["gamma"] == 0.99  # kept, outside results/
     with pytest.raises(ValueError, match="no scaling run of budget 'tiny' has width 1000"):
         scaling.select(changed, width=1000)
