@@ -4,17 +4,9 @@
 # already at its budget lands at once. Land a whole env's 15 runs together (scripts/land_env.py, then `make
 # reproduce`): one recipe per env column. Walker2d's 15 runs and 5 independent members landed on 2026-11-28 (their
 # lines are gone), and so did its 12 appendix-E scaling runs (`python -m paper_lib.study.scaling --land TREE` copies in
-# each scaling run finished in TREE and trained as params.yaml says, then plays its final evaluation once). What
-# follows is the env's five studies under its new recipe, then Ant, whose baseline seed 0 resumed from the 2M probe
-# Ant-v5/baseline-zoo-n4.
-# Walker2d's five studies under its landed recipe (n_envs 4 and reward normalization enter every trial; the old
-# studies show as "another recipe" in notebook 9). Needs a tree at or after the commit that landed Walker2d;
-# land each one done with `python -m paper_lib.study.worker --all --land-from sqlite:///TREE/results/paper/studies/studies.db`.
-.venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-baseline --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-masksembles --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-mc_dropout --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-mc_dropconnect --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Walker2d-v5-ensemble --sampler-seed 0 --replace-other-recipe
+# each scaling run finished in TREE and trained as params.yaml says, then plays its final evaluation once), and so
+# did its five studies (`python -m paper_lib.study.worker --all --land-from sqlite:///TREE/results/paper/studies/studies.db`).
+# What follows is Ant, whose baseline seed 0 resumed from the 2M probe Ant-v5/baseline-zoo-n4.
 # Ant at the paper's 1e7 steps, seed 0 of every method first (the baseline took 9.2 h on one core here, beside another run)
 .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/paper/checkpoints/Ant-v5/baseline/seed0
 .venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 0 results/paper/checkpoints/Ant-v5/masksembles/seed0
