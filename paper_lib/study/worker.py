@@ -34,8 +34,8 @@ from optuna.exceptions import UpdateFinishedTrialError
 from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback, fail_stale_trials
 from optuna.trial import FrozenTrial, TrialState
 
-from paper_lib.study.config import StudyConfig, StudySpec, load_study_config
 from paper_lib.pipeline.layout import REPLACED
+from paper_lib.study.config import StudyConfig, StudySpec, load_study_config
 from paper_lib.study.objective import Objective
 from paper_lib.study.recipe import study_differences
 from paper_lib.study.storage import experimental_ok, open_storage
