@@ -7,6 +7,10 @@
 # each scaling run finished in TREE and trained as params.yaml says, then plays its final evaluation once), and so
 # did its five studies (`python -m paper_lib.study.worker --all --land-from sqlite:///TREE/results/paper/studies/studies.db`).
 # What follows is Ant, whose baseline seed 0 resumed from the 2M probe Ant-v5/baseline-zoo-n4.
+# Landing Ant changes three places of params.yaml in one commit: retraining.Ant-v5 replaces hyperparameters.Ant-v5,
+# and the 1e6 cap `total_timesteps: {Ant-v5: 1000000}` goes from `run` and `profiles.paper` (else land_env.py refuses
+# every run: "total_timesteps: trained with 10000000, params.yaml gives 1000000"; rehearsed with --dry-run on
+# 2026-11-28: baseline seed 0 passed every recipe check once both were changed).
 # Ant at the paper's 1e7 steps, seed 0 of every method first (the baseline took 9.2 h on one core here, beside another run)
 .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 0 results/paper/checkpoints/Ant-v5/baseline/seed0
 .venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 0 results/paper/checkpoints/Ant-v5/masksembles/seed0
