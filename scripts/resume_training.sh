@@ -43,4 +43,4 @@ sleep 2
 for pid in $(pgrep -f "train_queue.sh $queue"); do  # below the foreground's tests and notebooks
   [ -w "/proc/$pid/autogroup" ] && echo 19 > "/proc/$pid/autogroup" || true
 done
-echo "started: tail -f $queue_dir/issue38.out; logs in $queue.logs/"
+echo "started: tail -f $queue_dir/issue38.out; logs in $queue.logs/; progress: python scripts/training_progress.py $tree"
