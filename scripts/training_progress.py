@@ -25,6 +25,8 @@ from typing import Any
 
 import pandas as pd
 
+from paper_lib.agents.training import finished_budget
+
 ROOT = Path(__file__).resolve().parents[1]
 COMMITTED = Path("resume_points")
 
@@ -43,13 +45,12 @@ def resume_points(tree: Path) -> list[tuple[str, str, Path]]:
     return found
 
 
-def finished_budget(checkpoint: Path, steps: int) -> int | None:
+def finished_at(checkpoint: Path, steps: int) -> int | None:
     """The budget of a run whose checkpoint was written at `steps`, or None if it has not finished there."""
-    config = checkpoint / "config.json"
-    if not config.is_file():
+    budget = finished_budget(checkpoint)  # the library's reading of a finished run's config.json
+    if budget is None:
         return None
-    written = json.loads(config.read_text())
-    return written.get("total_timesteps") if written.get("trained_timesteps") == steps else None
+    return budget if json.loads((checkpoint / "config.json").read_text()).get("trained_timesteps") == steps else None
 
 
 def progress_row(run: str, where: str, state_file: Path, results: Path) -> dict[str, Any]:
@@ -57,7 +58,7 @@ def progress_row(run: str, where: str, state_file: Path, results: Path) -> dict[
     with open(state_file, "rb") as f:
         state = pickle.load(f)
     steps = int(state["num_timesteps"])
-    budget = finished_budget(results / run, steps)
+    budget = finished_at(results / run, steps)
     if budget is not None:
         status = "finished"
     else:
