@@ -9,7 +9,8 @@ of its last logged rollout (episodes ended in it, as SB3's ep_info_buffer counts
 hours left at the speed of its latest segment, which is the machine and the load it runs under now. A run is
 `finished` when its checkpoint folder in the same tree holds a config.json trained to the resume point's step (its
 budget is then that file's), `at budget` when it has reached its budget but that checkpoint is not there (a final
-resume point, which lands in seconds), else `in progress`. Without a finished checkpoint the budget is the recipe's,
+resume point, which lands in seconds), else `in progress`. A tree with live resume points is a training tree: its
+committed copies are those of the commit it was made from, so only its live rows are listed. Without a finished checkpoint the budget is the recipe's,
 which a `--timesteps` on the training command overrides without the resume point knowing (scripts/issue38.q names
 those).
 """
@@ -83,8 +84,16 @@ def main(argv: list[str] | None = None) -> int:
     for tree in args.trees:
         if not (tree / "results").is_dir():
             parser.exit(2, f"error: {tree} has no results/ folder: give the repository or a training worktree\n")
-        rows = [progress_row(run, where, state, tree / "results") for run, where, state in resume_points(tree)]
-        print(f"{tree}: {len(rows)} resume point(s)")
+        found = resume_points(tree)
+        live = [point for point in found if point[1] == "live"]
+        # A training worktree's own committed copies are those of the commit it was made from, long behind its
+        # live runs: listing them beside the live rows reads as runs gone backwards. The repository's are current.
+        shown = live or found
+        rows = [progress_row(run, where, state, tree / "results") for run, where, state in shown]
+        skipped = len(found) - len(shown)
+        print(f"{tree}: {len(rows)} resume point(s)"
+              + (f" ({skipped} committed copies of this training tree's commit not listed: give the repository"
+                 " for the current ones)" if skipped else ""))
         if rows:
             print(pd.DataFrame(rows).to_string(index=False))
     return 0

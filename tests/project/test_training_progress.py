@@ -31,11 +31,16 @@ def test_finished_at_budget_and_in_progress_runs(tmp_path):
     committed = trees["repo"] / "results" / "resume_points"
     shutil.copytree(resume_dir_for(trees["full"] / "results" / RUN), committed / RUN)
     shutil.copytree(resume_dir_for(trees["half"] / "results" / RUN), committed / "paper/checkpoints/half/seed0")
+    # the training tree's own committed copy (of the commit it was made from): behind its live run, not listed
+    shutil.copytree(resume_dir_for(trees["half"] / "results" / RUN),
+                    trees["full"] / "results" / "resume_points" / "paper/checkpoints/half/seed0")
 
     shown = _progress(trees["full"], trees["half"], trees["repo"])
     assert shown.returncode == 0, shown.stderr
     full, half, repo = (part for part in shown.stdout.split(str(tmp_path))[1:])
     assert _row(full, RUN)[1:5] == ["live", "finished", "64", "64"]
+    assert "1 committed copies of this training tree's commit not listed" in full
+    assert "paper/checkpoints/half/seed0" not in full
     # its own checkpoint says 32 steps were asked: finished at that budget, not in progress against the recipe's 64
     assert _row(half, RUN)[1:5] == ["live", "finished", "32", "32"]
     assert _row(repo, RUN)[1:6] == ["committed", "at", "budget", "64", "64"]  # lands from its resume point
