@@ -10,9 +10,9 @@ hours left at the speed of its latest segment, which is the machine and the load
 `finished` when its checkpoint folder in the same tree holds a config.json trained to the resume point's step (its
 budget is then that file's), `at budget` when it has reached its budget but that checkpoint is not there (a final
 resume point, which lands in seconds), else `in progress`. A tree with live resume points is a training tree: its
-committed copies are those of the commit it was made from, so only its live rows are listed. Without a finished checkpoint the budget is the recipe's,
-which a `--timesteps` on the training command overrides without the resume point knowing (scripts/issue38.q names
-those).
+committed copies are those of the commit it was made from, so only its live rows are listed. Without a finished
+checkpoint the budget is the recipe's, which a `--timesteps` on the training command overrides without the resume
+point knowing (scripts/issue38.q names those).
 """
 
 from __future__ import annotations
