@@ -14,6 +14,9 @@
 #   scripts/resume_points.sh restore [REPO] TRAINING_TREE  put them back where training resumes from them
 # REPO defaults to the repository this script is in. Paths below results/ are kept:
 #   results/recipe_probes/Walker2d-v5/x/.seed1.resume/  <->  results/resume_points/recipe_probes/Walker2d-v5/x/seed1/
+# Optuna studies training in the tree travel as its whole studies database (a few MB), saved while it holds COMPLETE
+# trials the repository's lacks (scripts/studies_resume_point.py):
+#   results/paper/studies/studies.db  <->  results/resume_points/paper/studies/studies.db
 # A resume point at the step of the copy already in REPO keeps that copy's bytes: a finished run that lands again on
 # a new machine rewrites its files (zip timestamps, a few ms more wall time) without training, and committing those
 # would add megabytes of history a session for nothing.
@@ -74,6 +77,11 @@ if [ "$mode" = save ]; then
     echo "saved $rel ($(du -sh "$store/$rel" | cut -f1))"
   done < <(find "$tree/results" -path "$store" -prune -o -name state.pkl -path '*/.*.resume/*' -print0)
   echo "$n resume point(s) in $store"
+  # Optuna studies training in the tree: its studies.db carries their trials (scripts/studies_resume_point.py)
+  while IFS= read -r -d '' db; do
+    rel=${db#"$tree/results/"}
+    "$python" "$here/scripts/studies_resume_point.py" save "$db" "$repo/results/$rel" "$store/$rel"
+  done < <(find "$tree/results" \( -path "$store" -o -path "$tree/results/resume_points" \) -prune -o -path '*/studies/studies.db' -print0)
 else
   [ -d "$store" ] || { echo "no resume points in $store"; exit 0; }
   while IFS= read -r -d '' state; do
@@ -85,4 +93,9 @@ else
     mkdir -p "$target" && cp -r "$saved/." "$target/"
     echo "restored $rel -> $target"
   done < <(find "$store" -name state.pkl -print0)
+  while IFS= read -r -d '' db; do  # studies in progress: their database replaces the tree's committed one
+    rel=${db#"$store/"}
+    mkdir -p "$(dirname "$tree/results/$rel")" && cp "$db" "$tree/results/$rel"
+    echo "restored $rel (studies in progress)"
+  done < <(find "$store" -path '*/studies/studies.db' -print0)
 fi

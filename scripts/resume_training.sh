@@ -4,9 +4,8 @@
 # A machine that still has WORKTREE (the previous session's) keeps it and its resume points, which are newer than
 # the committed ones, and its queue file's marks ("#started" lines are queued again: they resume). A new machine
 # gets a worktree at HEAD sharing this tree's .venv (later edits here never reach a running training), the committed
-# resume points (results/resume_points/, scripts/resume_points.sh) and a fresh copy of scripts/issue38.q: any line
-# that is not an Ant run first (none since Walker2d landed whole), so both workers finish such lines before Ant. A
-# finished run whose final resume point was committed lands again in seconds.
+# resume points (results/resume_points/, scripts/resume_points.sh: runs' and studies' progress) and a fresh copy of
+# scripts/issue38.q, whose lines run in order (now Ant's five studies, which continue from the restored database).
 # Before stopping: scripts/resume_points.sh save WORKTREE (it keeps the resume points of runs not landed yet, finished
 # ones included), and commit results/resume_points.
 # NO_START=1 prepares the worktree and the queue and stops before starting the workers.
@@ -33,7 +32,7 @@ mkdir -p "$queue_dir"
 if [ -f "$queue" ]; then
   sed -i 's/^#started //' "$queue"   # killed with the previous machine session: resume them
 else
-  { grep -v 'Ant-v5' "$repo/scripts/issue38.q"; grep '^\.venv.*Ant-v5' "$repo/scripts/issue38.q"; } > "$queue"
+  cp "$repo/scripts/issue38.q" "$queue"
 fi
 echo "$(grep -c '^\.venv' "$queue") runs queued in $queue, $(grep -c '^#done' "$queue") done"
 if [ "${NO_START:-}" = 1 ]; then echo "NO_START=1: not starting the workers"; exit 0; fi

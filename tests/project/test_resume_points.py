@@ -124,3 +124,45 @@ def test_a_tree_without_results_is_one_clear_error(tmp_path):
     done = _run("save", str(tmp_path), str(tmp_path))
     assert done.returncode == 2 and "has no results/ folder" in done.stderr
     assert _run("bogus").returncode == 2
+
+
+def _study_db(path: Path, name: str, *xs: float) -> str:
+    """An Optuna SQLite database at path with one two-objective study holding a COMPLETE trial per x."""
+    import optuna
+    from optuna.distributions import FloatDistribution
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    url = f"sqlite:///{path}"
+    study = optuna.create_study(study_name=name, storage=url, directions=["maximize", "maximize"], load_if_exists=True)
+    for x in xs:
+        study.add_trial(optuna.trial.create_trial(params={"x": x}, distributions={"x": FloatDistribution(0, 1)},
+                                                  values=[x, 1 - x]))
+    return url
+
+
+def test_studies_in_progress_travel_with_the_repository(tmp_path):
+    """A study worker's trials in the training tree's database are carried until they land in the repository's."""
+    import optuna
+
+    db = Path("results/paper/studies/studies.db")
+    tree, repo, new_machine = tmp_path / "frozen", tmp_path / "repo", tmp_path / "next"
+    _study_db(repo / db, "ppo-Ant-v5-baseline", 0.1)          # the committed study of the older recipe
+    tree_url = _study_db(tree / db, "ppo-Ant-v5-baseline", 0.3, 0.4)  # its replacement, half trained
+    stored = repo / "results" / "resume_points" / db.relative_to("results")
+
+    saved = _run("save", str(tree), str(repo))
+    assert saved.returncode == 0 and "saved" in saved.stdout, saved.stdout + saved.stderr
+    first = stored.read_bytes()
+    again = _run("save", str(tree), str(repo))  # the same trials: the saved bytes stay
+    assert "kept" in again.stdout and stored.read_bytes() == first, again.stdout + again.stderr
+
+    (new_machine / "results").mkdir(parents=True)
+    assert _run("restore", str(repo), str(new_machine)).returncode == 0
+    back = optuna.load_study(study_name="ppo-Ant-v5-baseline", storage=f"sqlite:///{new_machine / db}")
+    assert sorted(t.params["x"] for t in back.trials) == [0.3, 0.4]
+
+    (repo / db).unlink()  # the finished study lands: the repository's database now holds its trials
+    optuna.copy_study(from_study_name="ppo-Ant-v5-baseline", from_storage=tree_url,
+                      to_storage=f"sqlite:///{repo / db}")
+    landed = _run("save", str(tree), str(repo))
+    assert landed.returncode == 0 and not stored.exists(), landed.stdout + landed.stderr
