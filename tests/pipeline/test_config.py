@@ -32,7 +32,25 @@ def test_committed_profile_is_valid_and_profiles_switch(params):
     use_profile("paper", params)
     paper = load_run_config(params)
     assert paper.seeds == [0, 1, 2]
-    # Ant at 1e6 steps, not the paper's 1e7 (docs/deviations.md); every other env at its own budget
+    # every env at its own (the paper's) budget, Ant's 1e7 included since its runs landed (issue 38)
+    assert paper.budget("Ant-v5") is None and paper.budget("HalfCheetah-v5") is None
+    assert "the paper's training steps per run" in paper.budget_caption()
+
+
+def cap_ant_in_paper_profile(params: Path) -> None:
+    """Give the paper profile the per-env budget it held until Ant's 1e7 runs landed: Ant at 1e6, the others their own."""
+    head, profiles = params.read_text().split("\nprofiles:", 1)
+    paper_at = profiles.index("\n  paper:")
+    paper_section = profiles[paper_at:].replace("    total_timesteps: null", "    total_timesteps: {Ant-v5: 1000000}", 1)
+    assert paper_section != profiles[paper_at:], "the paper profile's budget line moved: update this helper"
+    params.write_text(head + "\nprofiles:" + profiles[:paper_at] + paper_section)
+
+
+def test_a_profile_budget_may_cap_one_env(params):
+    """A per-env mapping leaves the other envs their own budget, and the captions say which env differs."""
+    cap_ant_in_paper_profile(params)
+    use_profile("paper", params)
+    paper = load_run_config(params)
     assert paper.budget("Ant-v5") == 1_000_000 and paper.budget("HalfCheetah-v5") is None
     assert "the paper's (except Ant-v5 1,000,000)" in paper.budget_caption()
 
@@ -187,6 +205,7 @@ def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
     """`pipeline_status queue`: what `make retrain` would train, as resumable lines, seed 0 of every env first."""
     from paper_lib.pipeline.status import queue_lines
 
+    cap_ant_in_paper_profile(params)
     use_profile("paper", params)
     cfg = load_run_config(params)
     lines = queue_lines(cfg, resume_root="/tmp/resume", envs=["Ant-v5", "Swimmer-v5"], methods=["baseline", "ensemble"])
@@ -194,7 +213,7 @@ def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
     assert [line.split()[7] for line in lines[:4]] == ["0"] * 4, "every seed-0 run comes first"
     ant = [line for line in lines if " Ant-v5 " in line]
     assert all(line.startswith("env PAPER_LIB_RESUME_ROOT=/tmp/resume ") and line.endswith("--timesteps 1000000")
-               for line in ant), "Ant gets the profile's 1e6 budget"
+               for line in ant), "Ant gets the profile's own budget for it"
     assert not any("--timesteps" in line for line in lines if " Swimmer-v5 " in line)
     with pytest.raises(ValueError, match=r"env\(s\) \['Foo'\] are not in profile 'paper'"):
         queue_lines(cfg, envs=["Foo"])
