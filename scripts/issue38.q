@@ -6,12 +6,7 @@
 # with its 12 appendix-E scaling runs (`python -m paper_lib.study.scaling --land TREE` copies in each scaling run
 # finished in TREE and trained as params.yaml says, then plays its final evaluation once) and its five studies
 # (`python -m paper_lib.study.worker --all --land-from sqlite:///TREE/results/paper/studies/studies.db`). Ant's 15
-# runs at the paper's 1e7 steps and its 8 scaling runs landed on 2026-11-30 (their lines are gone; the baseline's
-# seed 0 had resumed from the 2M probe Ant-v5/baseline-zoo-n4). What follows is Ant's five studies, trained again
-# under the landed recipe (the older recipe's study is deleted, after a copy under build/replaced/); land them as
-# Walker2d's once all five hold their 24 COMPLETE trials.
-.venv/bin/python -m paper_lib.study.worker --study ppo-Ant-v5-baseline --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Ant-v5-masksembles --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Ant-v5-mc_dropout --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Ant-v5-mc_dropconnect --sampler-seed 0 --replace-other-recipe
-.venv/bin/python -m paper_lib.study.worker --study ppo-Ant-v5-ensemble --sampler-seed 0 --replace-other-recipe
+# runs at the paper's 1e7 steps and its 8 scaling runs landed on 2026-11-30 (the baseline's seed 0 had resumed
+# from the 2M probe Ant-v5/baseline-zoo-n4), and its five studies, trained again under the landed recipe, the same
+# day (the Ensemble's with a second worker of its own sampler seed, docs/study.md). Every line has landed, so the
+# queue is empty: scripts/resume_training.sh starts nothing until a later issue adds lines here.

@@ -5,7 +5,7 @@
 # the committed ones, and its queue file's marks ("#started" lines are queued again: they resume). A new machine
 # gets a worktree at HEAD sharing this tree's .venv (later edits here never reach a running training), the committed
 # resume points (results/resume_points/, scripts/resume_points.sh: runs' and studies' progress) and a fresh copy of
-# scripts/issue38.q, whose lines run in order (now Ant's five studies, which continue from the restored database).
+# scripts/issue38.q, whose lines run in order (all of issue 38's have landed: it is empty now).
 # Before stopping: scripts/resume_points.sh save WORKTREE (it keeps the resume points of runs not landed yet, finished
 # ones included), and commit results/resume_points.
 # NO_START=1 prepares the worktree and the queue and stops before starting the workers.
