@@ -310,7 +310,7 @@ def repeated_games_note(repeated: pd.DataFrame, episodes: pd.DataFrame) -> str:
     groups = episodes.groupby(RUN_MODE_KEYS).ngroups
     if repeated.empty:
         return f"Every one of the {groups} run x mode groups played distinct games in all its episodes."
-    fewest = repeated.sort_values("distinct_games").iloc[0]
+    fewest = repeated.sort_values("distinct_games", kind="stable").iloc[0]  # ties: the first listed, on any CPU
     modes = " and ".join(sorted(set(repeated["actions"])))
     return (f"{len(repeated)} of {groups} run x mode groups replayed a game ({modes} actions; envs: "
             f"{', '.join(dict.fromkeys(repeated['env']))}); the fewest: {fewest['env']} {fewest['method']} seed "

@@ -34,6 +34,24 @@ MC_DIGITS_NOTE = ("Numbers printed with one decimal fewer have a Monte Carlo sta
                   "estimate, not a property of the agent")
 
 
+#: Significant digits a CSV keeps: far more than any table prints, yet fewer than a double's ~16, so that the last
+#: bits another CPU changes (another SIMD summation order or libm, ~1e-16 relative) do not reach a rebuild's bytes.
+CSV_SIGNIFICANT_DIGITS = 12
+
+
+def _significant(values: pd.Series) -> np.ndarray:
+    return np.array([float(f"{v:.{CSV_SIGNIFICANT_DIGITS}g}") for v in values], dtype=float)
+
+
+def csv_text(df: pd.DataFrame) -> str:
+    """``df`` as CSV text (no index), its floats rounded to CSV_SIGNIFICANT_DIGITS: the same bytes on any CPU."""
+    out = df.copy()
+    for i in range(out.shape[1]):
+        if pd.api.types.is_float_dtype(out.iloc[:, i]):
+            out.isetitem(i, _significant(out.iloc[:, i]))
+    return out.to_csv(index=False, lineterminator="\n")
+
+
 def _stem_path(stem: str | os.PathLike[str], suffix: str) -> Path:
     """Append ``suffix`` to the stem (not with_suffix: stems like 'roc.value' keep their dot)."""
     return Path(f"{os.fspath(stem)}{suffix}")
@@ -234,7 +252,7 @@ def save_table(
 ) -> dict[str, Path]:
     """Write ``stem``.csv, .md and .tex atomically; return their paths keyed by format.
 
-    The CSV keeps full float precision (it is what code reads back); Markdown and
+    The CSV keeps 12 significant digits (it is what code reads back; `csv_text`); Markdown and
     LaTeX show floats with ``float_format``. ``caption`` is plain text: it is the
     first line of the .md and is LaTeX-escaped into the .tex caption. A non-default
     index is written as leading column(s). ``intervals`` ({estimate: (low, high)}) shows
@@ -269,7 +287,7 @@ def save_table(
     right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) if c in flat else True
              for c in display.columns]
     paths = {fmt: _stem_path(stem, f".{fmt}") for fmt in ("csv", "md", "tex")}
-    write_text_atomic(paths["csv"], flat.to_csv(index=False, lineterminator="\n"))
+    write_text_atomic(paths["csv"], csv_text(flat))
     write_text_atomic(paths["md"], f"{caption.strip()}\n\n{to_markdown(shown, right)}\n")
     write_text_atomic(paths["tex"], to_latex(shown, caption.strip(), right, label))
     return paths

@@ -102,6 +102,22 @@ def test_save_table_writes_three_files_with_caption(tmp_path):
     assert "| value_unc | 0.912 | 3 |" in fallback
 
 
+def test_a_table_differing_in_the_last_bits_writes_the_same_csv_bytes(tmp_path):
+    """Another CPU moves a computed interval by an ulp (4724.213155629166 vs ...167 seen across machines)."""
+    value = 4724.213155629166
+    here = pd.DataFrame({"env": ["Ant-v5", "Swimmer-v5"], "ci_high": [value, np.nan], "n_seeds": [3, 1],
+                         "steps": [1000448.0, 2e-30]})
+    there = here.assign(ci_high=[np.nextafter(value, np.inf), np.nan])
+    assert here.ci_high[0] != there.ci_high[0]
+    assert tables.csv_text(here) == tables.csv_text(there)
+    tables.save_table(here, tmp_path / "a", caption="A table.")
+    tables.save_table(there, tmp_path / "b", caption="A table.")
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    back = pd.read_csv(tmp_path / "a.csv")
+    assert back.ci_high[0] == pytest.approx(value, rel=1e-12) and np.isnan(back.ci_high[1])
+    assert back.steps.tolist() == [1000448.0, 2e-30] and back.n_seeds.dtype == np.int64  # ints and dtypes kept
+
+
 def test_save_table_index_and_errors(tmp_path):
     text = tables.mean_std_table(RESULTS, "env", "method", "reward")
     paths = tables.save_table(text, tmp_path / "rew", caption="Reward")
