@@ -93,14 +93,23 @@ def reward_claim(vs_baseline: pd.DataFrame) -> list[dict[str, str]]:
     return rows
 
 
+def _require_family_intervals(table: pd.DataFrame, name: str) -> None:
+    """One clear error for a table written before it carried its simultaneous intervals."""
+    missing = sorted({"family_size", "family_ci_low", "family_ci_high"} - set(table.columns))
+    if missing:
+        raise ValueError(f"the claims need tables/{name} with {missing}, which older code did not write; rebuild "
+                         "it first: `make reproduce` runs notebook 3 before notebook 6.")
+
+
 def auroc_claim(pairwise: pd.DataFrame) -> list[dict[str, str]]:
     """Per env, perturbed states: Masksembles and Ensemble each above MC Dropout and MC DropConnect.
 
     For value_std and policy_std separately, on the per-seed AUROC differences of the four pairs
-    (`paper_tables.auroc_between_methods`): a measure holds when all four intervals lie above 0, does not
-    hold when any lies below 0 (then one of them is surely not ahead); the two measures combine with
-    `combine`.
+    (`paper_tables.auroc_between_methods`): a measure holds when all four intervals lie above 0 (all must, so
+    each pair's own 95% interval), does not hold when some pair's simultaneous interval over the four lies below 0
+    (one of four chances: Bonferroni, the same 5% risk as the other way); the two measures combine with `combine`.
     """
+    _require_family_intervals(pairwise, "auroc_between_methods")
     rows = []
     perturbed = pairwise[pairwise.ood_set == "perturbed"]
     for env_id in pd.unique(perturbed.env):
@@ -116,7 +125,7 @@ def auroc_claim(pairwise: pd.DataFrame) -> list[dict[str, str]]:
                 verdict = inconclusive(n_seeds)
             elif (cells.ci_low > 0).all():
                 verdict = HOLDS
-            elif (cells.ci_high < 0).any():
+            elif (cells.family_ci_high < 0).any():
                 verdict = FAILS
             else:
                 verdict = inconclusive(n_seeds)
@@ -164,10 +173,13 @@ def js_claim(metrics: pd.DataFrame) -> list[dict[str, str]]:
 def detector_claim(versus: pd.DataFrame) -> list[dict[str, str]]:
     """Per env, perturbed states: does some member measure beat its runs' best member-free detector?
 
-    Success is at least one (method, measure) cell above the detector: holds when some cell's interval of
-    (measure - detector) lies above 0, does not hold when every cell's lies below 0; cells of one seed
-    count for neither.
+    Success is at least one (method, measure) cell above the detector, failure every cell below it, each at
+    the same 5% risk of a wrong verdict: holds when some cell's simultaneous interval (Bonferroni over the env's
+    m cells, `paper_tables.auroc_vs_detectors`) lies above 0, since any one of m 95% intervals would clear 0 by
+    chance far more often than 5%; does not hold when every cell's own 95% interval lies below 0 (all m must,
+    so no correction is needed); inconclusive otherwise. Cells of one seed count for neither.
     """
+    _require_family_intervals(versus, "auroc_vs_detectors")
     rows = []
     for env_id, cells in versus[versus.ood_set == "perturbed"].groupby("env", sort=False):
         above, below = int((cells.ci_low > 0).sum()), int((cells.ci_high < 0).sum())
@@ -175,7 +187,7 @@ def detector_claim(versus: pd.DataFrame) -> list[dict[str, str]]:
         n_seeds = int(cells.n_seeds.min())
         if tested.empty:
             verdict = inconclusive(n_seeds)
-        elif (tested.ci_low > 0).any():
+        elif (tested.family_ci_low > 0).any():
             verdict = HOLDS
         elif len(tested) == len(cells) and (tested.ci_high < 0).all():
             verdict = FAILS
@@ -183,9 +195,11 @@ def detector_claim(versus: pd.DataFrame) -> list[dict[str, str]]:
             verdict = inconclusive(n_seeds)
         best = cells.loc[cells.difference.idxmax()]
         rows.append(_row("members_vs_detectors", env_id, verdict,
-                         f"of {len(cells)} measure cells: {above} above the detector, {len(cells) - above - below} "
-                         f"tied, {below} below; best {best.method} {best.measure} {best.difference:+.2f} "
-                         f"[{best.ci_low:+.2f}, {best.ci_high:+.2f}] vs {best.detector}; {n_seeds} seed(s)"))
+                         f"of {len(cells)} measure cells (95% intervals): {above} above the detector, "
+                         f"{len(cells) - above - below} tied, {below} below; best {best.method} {best.measure} "
+                         f"{best.difference:+.2f} [{best.ci_low:+.2f}, {best.ci_high:+.2f}], simultaneous over "
+                         f"{int(best.family_size)} [{best.family_ci_low:+.2f}, {best.family_ci_high:+.2f}] vs "
+                         f"{best.detector}; {n_seeds} seed(s)"))
     return rows
 
 

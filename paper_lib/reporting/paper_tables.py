@@ -399,8 +399,8 @@ def _mc_errors(se_a: float, se_b: float, a: str, b: str) -> dict[str, float]:
 
 #: The columns of `auroc_vs_detectors` and `auroc_members_vs_baseline` (also of an empty result).
 DETECTOR_DIFFERENCE_COLUMNS = ["env", "ood_set", "method", "measure", "auroc", "detector", "detector_auroc",
-                               "difference", "ci_low", "ci_high", "pairing", "n_seeds", "auroc_mc_se",
-                               "detector_auroc_mc_se", "difference_mc_se"]
+                               "difference", "ci_low", "ci_high", "family_size", "family_ci_low", "family_ci_high",
+                               "pairing", "n_seeds", "auroc_mc_se", "detector_auroc_mc_se", "difference_mc_se"]
 BASELINE_DIFFERENCE_COLUMNS = ["env", "ood_set", "method", "family", "measure", "auroc", "baseline_detector",
                                "baseline_auroc", "difference", "ci_low", "ci_high", "pairing", "n_seeds",
                                "baseline_seeds", "auroc_mc_se", "baseline_auroc_mc_se", "difference_mc_se"]
@@ -411,25 +411,32 @@ def auroc_vs_detectors(metrics: pd.DataFrame, replicates: Replicates, methods: l
     """Each member measure's AUROC minus its own runs' best member-free detector (`best_detectors`), per seed.
 
     The same runs and states on both sides: seeds are drawn once for both; the cluster resamples
-    are shared only where the replicates share them (`REPLICATES_SHARE_RESAMPLES`).
+    are shared only where the replicates share them (`REPLICATES_SHARE_RESAMPLES`). Beside each cell's interval,
+    its simultaneous one over the `family_size` cells of its (env, OOD set) (Bonferroni: level 1 - (1 - level) / m,
+    from the same draws): "some cell beats the detector" needs it, or m chances would each risk 1 - level.
     """
     pairing = "paired" if REPLICATES_SHARE_RESAMPLES else "seeds"
     best = best_detectors(metrics)
     rows = []
     members = metrics[~_is_detector(metrics["measure"])]
-    for (env, ood_set, method, measure), _ in members.groupby(["env", "ood_set", "method", "measure"], sort=False):
-        detector = best.get((env, ood_set))
-        if detector is None:
-            continue
+    cells = [key for key, _ in members.groupby(["env", "ood_set", "method", "measure"], sort=False)
+             if (key[0], key[1]) in best]
+    family_size = pd.Series([(env, ood_set) for env, ood_set, _, _ in cells]).value_counts().to_dict()
+    for env, ood_set, method, measure in cells:
+        detector = best[(env, ood_set)]
         a, b = _seed_aurocs(metrics, env, method, ood_set, measure), _seed_aurocs(metrics, env, method, ood_set, detector)
         seeds = a.index.intersection(b.index)
         a, b = a[seeds], b[seeds]
         reps_a = [replicates[(env, method, s, ood_set, measure)] for s in seeds]
         reps_b = [replicates[(env, method, s, ood_set, detector)] for s in seeds]
+        m = family_size[(env, ood_set)]
+        family = _auroc_difference(a, b, reps_a, reps_b, cell_rng(seed, env, ood_set, method, measure, detector),
+                                   pairing, n_boot, 1.0 - (1.0 - level) / m)
         rng = cell_rng(seed, env, ood_set, method, measure, detector)
         rows.append({"env": env, "ood_set": ood_set, "method": method, "measure": measure, "auroc": a.mean(),
                      "detector": detector, "detector_auroc": b.mean(),
                      **_auroc_difference(a, b, reps_a, reps_b, rng, pairing, n_boot, level),
+                     "family_size": m, "family_ci_low": family["ci_low"], "family_ci_high": family["ci_high"],
                      "pairing": "paired" if pairing == "paired" else "unpaired", "n_seeds": len(seeds),
                      **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, seeds),
                                   _seed_mc_se(metrics, env, method, ood_set, detector, seeds), "auroc", "detector_auroc")})
@@ -485,7 +492,8 @@ def auroc_members_vs_baseline(metrics: pd.DataFrame, replicates: Replicates, met
 
 #: The columns of `auroc_between_methods` (also of an empty result).
 PAIRWISE_COLUMNS = ["env", "ood_set", "measure", "method", "versus", "auroc", "versus_auroc", "difference", "ci_low",
-                    "ci_high", "pairing", "n_seeds", "auroc_mc_se", "versus_auroc_mc_se", "difference_mc_se"]
+                    "ci_high", "family_size", "family_ci_low", "family_ci_high", "pairing", "n_seeds", "auroc_mc_se",
+                    "versus_auroc_mc_se", "difference_mc_se"]
 
 
 def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: list[tuple[str, str]],
@@ -495,24 +503,33 @@ def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: 
 
     Two agents, each on the states it collected: seed s of one is compared with seed s of the other
     (seeds drawn once for both), cluster resamples independent ("seeds" pairing); the interval is at
-    least Student's t over the per-seed differences (`statistics.difference_ci`).
+    least Student's t over the per-seed differences (`statistics.difference_ci`). Beside it, the simultaneous
+    interval over the `family_size` pairs of its (env, measure) (Bonferroni, from the same draws), for a verdict
+    that one pair of several is surely behind.
     """
     rows = []
     cells = metrics[metrics["ood_set"] == ood_set]
     for env in pd.unique(cells["env"]):
         for measure in measures:
+            seeds_of = {(method, versus): _seed_aurocs(metrics, env, method, ood_set, measure).index.intersection(
+                _seed_aurocs(metrics, env, versus, ood_set, measure).index) for method, versus in pairs}
+            family_size = sum(not seeds.empty for seeds in seeds_of.values())
             for method, versus in pairs:
                 a, b = (_seed_aurocs(metrics, env, m, ood_set, measure) for m in (method, versus))
-                seeds = a.index.intersection(b.index)
+                seeds = seeds_of[(method, versus)]
                 if seeds.empty:
                     continue
                 a, b = a[seeds], b[seeds]
                 reps_a = [replicates[(env, method, s, ood_set, measure)] for s in seeds]
                 reps_b = [replicates[(env, versus, s, ood_set, measure)] for s in seeds]
+                family = _auroc_difference(a, b, reps_a, reps_b, cell_rng(seed, env, ood_set, measure, method, versus),
+                                           "seeds", n_boot, 1.0 - (1.0 - level) / family_size)
                 rng = cell_rng(seed, env, ood_set, measure, method, versus)
                 rows.append({"env": env, "ood_set": ood_set, "measure": measure, "method": method, "versus": versus,
                              "auroc": a.mean(), "versus_auroc": b.mean(),
                              **_auroc_difference(a, b, reps_a, reps_b, rng, "seeds", n_boot, level),
+                             "family_size": family_size, "family_ci_low": family["ci_low"],
+                             "family_ci_high": family["ci_high"],
                              "pairing": "seeds", "n_seeds": len(seeds),
                              **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, seeds),
                                           _seed_mc_se(metrics, env, versus, ood_set, measure, seeds),

@@ -7,6 +7,7 @@ holds when the interval excludes failure, does not hold when it excludes success
 from __future__ import annotations
 
 import pandas as pd
+import pytest
 
 from paper_lib.reporting.claims import AUROC_ORDER_PAIRS, CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, paper_claims
 
@@ -21,7 +22,8 @@ def _vs_baseline(ci_low: float, ci_high: float, baseline: float = 100.0, n_seeds
 def _pairwise(intervals: dict[str, tuple[float, float]], n_seeds: int = 3) -> pd.DataFrame:
     """Every AUROC-order pair with the same interval per measure."""
     return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "measure": measure, "method": a, "versus": b,
-                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "n_seeds": n_seeds}
+                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "family_size": 4,
+                          "family_ci_low": lo, "family_ci_high": hi, "n_seeds": n_seeds}
                          for measure, (lo, hi) in intervals.items() for a, b in AUROC_ORDER_PAIRS])
 
 
@@ -30,10 +32,14 @@ def _metrics(aurocs: dict[tuple[str, str], float]) -> pd.DataFrame:
                          for (m, s), a in aurocs.items()])
 
 
-def _versus(ci: list[tuple[float, float]], n_seeds: int = 3) -> pd.DataFrame:
+def _versus(ci: list[tuple[float, float]], n_seeds: int = 3, family: list[tuple[float, float]] | None = None
+            ) -> pd.DataFrame:
+    """Detector differences; `family`: the simultaneous intervals (default: the same as the cells' own)."""
+    family = ci if family is None else family
     return pd.DataFrame([{"env": "Swimmer-v5", "ood_set": "perturbed", "method": "masksembles", "measure": f"m{i}",
-                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "detector": "knn_obs",
-                          "n_seeds": n_seeds} for i, (lo, hi) in enumerate(ci)])
+                          "difference": (lo + hi) / 2, "ci_low": lo, "ci_high": hi, "family_size": len(ci),
+                          "family_ci_low": f_lo, "family_ci_high": f_hi, "detector": "knn_obs", "n_seeds": n_seeds}
+                         for i, ((lo, hi), (f_lo, f_hi)) in enumerate(zip(ci, family))])
 
 
 def _verdicts(table: pd.DataFrame) -> dict[str, str]:
@@ -81,3 +87,21 @@ def test_absence_of_evidence_is_not_agreement():
                                       _versus([(0.01, 0.05)], n_seeds=1), None))
     assert one_seed["masksembles_reward"] == one_seed["auroc_order"] == one_seed["members_vs_detectors"] \
         == "inconclusive (1 seed)"
+
+
+def test_one_of_many_cells_clearing_zero_alone_is_not_enough_to_hold():
+    """Twelve 95% intervals give twelve chances: "some cell beats the detector" needs the simultaneous interval,
+    while "every cell loses" needs each cell's own interval below 0 (all must: no correction)."""
+    args = (_vs_baseline(-5.0, 5.0), _pairwise(SPLIT), _metrics(JS))
+    own = [(0.018, 0.070)] + [(-0.1, 0.05)] * 11  # one cell above 0 at 95% ...
+    wide = [(-0.05, 0.14)] + [(-0.3, 0.2)] * 11  # ... but not once the 12 chances are accounted for
+    assert _verdicts(paper_claims(*args, _versus(own, family=wide), None))["members_vs_detectors"] \
+        == "inconclusive (3 seeds)"
+    assert _verdicts(paper_claims(*args, _versus(own, family=[(0.001, 0.09)] + wide[1:]), None))[
+        "members_vs_detectors"] == HOLDS
+    below = [(-0.2, -0.01)] * 12
+    assert _verdicts(paper_claims(*args, _versus(below, family=[(-0.4, 0.1)] * 12), None))[
+        "members_vs_detectors"] == FAILS
+    stale = _versus(own).drop(columns=["family_ci_low"])
+    with pytest.raises(ValueError, match="rebuild it first"):
+        paper_claims(*args, stale, None)

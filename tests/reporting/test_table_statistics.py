@@ -147,6 +147,7 @@ def test_auroc_vs_detectors_pairs_only_where_resamples_are_shared(monkeypatch):
     table = report.auroc_vs_detectors(metrics, reps, ["baseline", "m"], n_boot=400)
     row = table.iloc[0]
     assert row.pairing == "paired" and (row.ci_low, row.ci_high) == (0.0, 0.0)
+    assert row.family_size == 1 and (row.family_ci_low, row.family_ci_high) == (0.0, 0.0)  # one cell: no correction
     assert report.detector_pairing_note(table).startswith("paired: the same seeds and the same cluster resamples")
 
 
@@ -220,6 +221,9 @@ def test_committed_pooled_auroc_with_one_seed_is_each_runs_own(cpu_cfg):
     versus = report.auroc_vs_detectors(metrics, replicates, [m for _, m, _ in cpu_cfg.runs[:5]], n_boot=200)
     assert len(versus) == 2 * 2 * 4 * 3  # envs x OOD sets x member methods x member measures
     assert set(versus.pairing) == {"paired"} and (versus.ci_low <= versus.difference).all() and (versus.difference <= versus.ci_high).all()
+    assert set(versus.family_size) == {4 * 3}  # simultaneous over the env's member cells of one OOD set ...
+    assert (versus.family_ci_low <= versus.ci_low).all() and (versus.ci_high <= versus.family_ci_high).all()  # ... wider
+    assert (versus.family_ci_low < versus.ci_low).any()  # strictly, where the draws allow it
 
 
 # ------------------------------------------------------------------------------------------------- env seeding
