@@ -7,7 +7,9 @@ on, so a reader can disagree with a rule without re-running anything.
 The claims that rest on an interval share one rule shape (`decide`), the same burden of proof either way:
 "holds" when the 95% interval excludes failure, "does not hold" when it excludes success, "inconclusive
 (n seeds)" otherwise. A cell of one training seed is inconclusive whatever its interval: that interval
-covers the episodes or states of one run, not the method. Notebook 6 writes the table
+covers the episodes or states of one run, not the method. Where one of m cells alone would decide (some cell
+beats the detector; some pair is behind), that cell's interval is simultaneous over the m (Bonferroni, the
+tables' `family_ci_*`), so that m chances do not tilt the verdict that way. Notebook 6 writes the table
 (`tables/paper_claims`) and scripts/readme_results.py pastes it into docs/results.md.
 """
 
