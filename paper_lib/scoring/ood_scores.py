@@ -191,7 +191,8 @@ def summarize_seeds(metrics: pd.DataFrame, replicates: pd.DataFrame, rng: np.ran
     """One row per (keys, ood_set, measure) over the training seeds: the table's numbers.
 
     A table builder: metrics are means over seeds (each already a mean over scoring seeds); the AUROC
-    interval is `statistics.seed_cluster_ci` (seeds, then clusters within each); auroc_seed_std is the
+    interval is `statistics.seed_cluster_ci` (seeds, then clusters within each), at least Student's t over the
+    per-seed AUROCs the row averages and clipped to [0, 1] (issue 66, finding 5); auroc_seed_std is the
     spread over training seeds (NaN with one), auroc_scoring_std the mean spread over scoring
     seeds. With one seed every number equals that run's own.
     """
@@ -204,7 +205,10 @@ def summarize_seeds(metrics: pd.DataFrame, replicates: pd.DataFrame, rng: np.ran
     rows = []
     for key, frame in metrics.groupby(group, sort=False):
         per_seed = [reps[(*key, s)] for s in frame["seed"]]
-        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level)
+        # the t floor over the AUROCs the row reports (not over the replicates' means, which differ from them by
+        # the bootstrap's bias), and an AUROC interval never leaves [0, 1]
+        low, high = seed_cluster_ci(per_seed, rng, n_boot=n_boot, level=level, estimates=frame["auroc"].to_numpy())
+        low, high = max(low, 0.0), min(high, 1.0)
         row = dict(zip(group, key))
         row.update(n_seeds=len(frame), auroc=frame["auroc"].mean(), auroc_ci_low=low, auroc_ci_high=high,
                    auroc_seed_std=frame["auroc"].std(ddof=1) if len(frame) > 1 else np.nan)
