@@ -113,8 +113,10 @@ def verdict_lines(layout: Layout) -> list[str]:
 def reading(layout: Layout) -> str:
     lines = ["What these numbers say (computed from the tables above by `scripts/readme_results.py`; cells "
              "with one seed are hints, not findings). The verdicts of notebook 6 (one rule for every claim: holds "
-             "when the 95% interval excludes failure, does not hold when it excludes success, inconclusive "
-             "otherwise; where one of several cells would decide, that cell's interval is simultaneous over them):"]
+             "when the 95% interval excludes failure, does not hold when it excludes success, otherwise undecided; "
+             "where one of several cells would decide, that cell's interval is simultaneous over them; an env short "
+             "of its registered seeds reads provisional, an undecided cell the registered power analysis sized "
+             "beyond the plan undecidable: docs/preregistration.md):"]
     return "\n".join(lines + verdict_lines(layout) + ["", "The numbers behind them:"] + reward_lines(layout)
                      + auroc_lines(layout))
 

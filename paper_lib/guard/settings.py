@@ -23,7 +23,7 @@ from typing import Any
 
 from paper_lib.guard.conformal import check_alpha, check_confidence, check_window, min_calibration_size
 from paper_lib.guard.scores import SCORE_NAMES
-from paper_lib.pipeline.config import RunConfig, check_keys, read_params, validate_params
+from paper_lib.pipeline.config import RunConfig, check_keys, read_params, seeds_of, validate_params
 
 SECTION = "guard"
 SHARED = ("alpha", "window", "cusum_quantile", "fallback", "fallback_scores", "combine")
@@ -183,6 +183,7 @@ def load_settings(params_file: str | Path = "params.yaml") -> tuple[RunConfig, G
     budgets = section.get("budgets") if isinstance(section, dict) else None
     for name in sorted(set(budgets or {}) & set(params["profiles"]) - {cfg.profile}):
         parse_settings(section, name, where)  # every profile's budget, not the active one's only: `use` switches
-    seeds_of = {name: profile.get("seeds") for name, profile in params["profiles"].items() if isinstance(profile, dict)}
-    check_budget_seeds(section, {**seeds_of, cfg.profile: list(cfg.seeds)}, where)
+    seeds = {name: seeds_of(profile["seeds"]) for name, profile in params["profiles"].items()
+             if isinstance(profile, dict) and isinstance(profile.get("seeds"), (list, dict))}
+    check_budget_seeds(section, {**seeds, cfg.profile: cfg.all_seeds}, where)
     return cfg, settings

@@ -80,7 +80,7 @@ class RunConfig:
     profile: str
     envs: list[str]
     methods: list[str]
-    seeds: list[int]
+    seeds: list[int] | dict[str, list[int]]  # one list, or one per env family (MuJoCo, Atari): `seeds_for`
     total_timesteps: int | dict[str, int] | None  # None: each env's own; a mapping: per env (others their own)
     overrides: dict[str, Any]
     n_id_states: int
@@ -124,7 +124,24 @@ class RunConfig:
         return self.layout.figures
 
     def runs(self) -> list[tuple[str, str, int]]:
-        return [(e, m, s) for e in self.envs for m in self.methods for s in self.seeds]
+        return [(e, m, s) for e in self.envs for m in self.methods for s in self.seeds_for(e)]
+
+    def seeds_for(self, env_id: str) -> list[int]:
+        """The training seeds of `env_id`'s runs: the profile's list, or its env family's (issue 67: the paper
+        profile trains Atari at the paper's 3 seeds and MuJoCo at 5, as registered in `preregistration`)."""
+        if isinstance(self.seeds, dict):
+            return list(self.seeds[env_family(env_id)])
+        return list(self.seeds)
+
+    @property
+    def all_seeds(self) -> list[int]:
+        """Every seed some env of the profile trains."""
+        return seeds_of(self.seeds)
+
+    def seeds_caption(self) -> str:
+        if isinstance(self.seeds, dict):
+            return "seeds " + ", ".join(f"{family} {seeds}" for family, seeds in self.seeds.items())
+        return f"{len(self.seeds)} seed(s) {self.seeds}"
 
     def budget(self, env_id: str) -> int | None:
         """Training steps of a run in env_id under this profile; None: the env's own (the paper's) budget."""
@@ -141,7 +158,7 @@ class RunConfig:
 
     def budget_caption(self) -> str:
         steps = self.steps_caption()
-        return (f"profile '{self.profile}': {len(self.seeds)} seed(s) {self.seeds}, {steps} training steps per run, "
+        return (f"profile '{self.profile}': {self.seeds_caption()}, {steps} training steps per run, "
                 f"{self.eval_episodes} evaluation episodes; {self.protocol_caption()}; the paper used 3 seeds")
 
     def protocol_caption(self) -> str:
@@ -152,6 +169,24 @@ class RunConfig:
                     f"steps, ID states from {self.id_episodes} episodes x {self.steps_per_config} steps, {skip}")
         return (f"appendix G protocol: {self.n_ood_states} OOD states, a new configuration per episode, and "
                 f"{self.n_id_states} ID states, at most {self.max_episode_steps} steps per episode, {skip}")
+
+
+#: The env families a profile's `seeds` may name apart.
+SEED_FAMILIES = ("MuJoCo", "Atari")
+
+
+def env_family(env_id: str) -> str:
+    """Atari for the ALE games, MuJoCo for every other env (the classic-control test env included)."""
+    from paper_lib.agents.envs import is_atari
+
+    return "Atari" if is_atari(env_id) else "MuJoCo"
+
+
+def seeds_of(value: list[int] | dict[str, list[int]]) -> list[int]:
+    """Every seed a profile's `seeds` names: the list itself, or the union of a per-family mapping."""
+    if isinstance(value, dict):
+        return sorted({seed for seeds in value.values() for seed in seeds})
+    return list(value)
 
 
 REQUIRED = ("envs", "methods", "seeds", "total_timesteps", "overrides", "n_id_states", "n_ood_states",
@@ -221,8 +256,17 @@ def validate_profile(profile: Any, where: str, hps: dict[str, Any]) -> None:
     for method in _check_list(profile["methods"], "methods", where):
         if method not in METHODS:
             raise ValueError(f"{where}: unknown method {method!r}; use one of {METHODS}")
-    for seed in _check_list(profile["seeds"], "seeds", where):
-        check_seed(seed, where)
+    seeds = profile["seeds"]
+    if isinstance(seeds, dict):
+        families = sorted({env_family(env_id) for env_id in profile["envs"]})
+        check_keys(seeds, f"{where}: seeds", SEED_FAMILIES, families, what="env family",
+                   fix="give each env family of the profile's envs its seed list, e.g. {MuJoCo: [0, 1], Atari: [0]}")
+        for family, values in seeds.items():
+            for seed in _check_list(values, f"seeds.{family}", where):
+                check_seed(seed, where)
+    else:
+        for seed in _check_list(seeds, "seeds", where):
+            check_seed(seed, where)
     budget = profile["total_timesteps"]
     if isinstance(budget, dict):
         for env_id, steps in budget.items():

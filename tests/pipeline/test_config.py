@@ -31,7 +31,14 @@ def test_committed_profile_is_valid_and_profiles_switch(params):
     assert cfg.profile == "tiny" and cfg.results.name == "tiny"
     use_profile("paper", params)
     paper = load_run_config(params)
-    assert paper.seeds == [0, 1, 2]
+    # issue 67: the paper's 3 seeds on Atari, 5 on MuJoCo, as the pre-registration plans them
+    assert paper.seeds_for("SeaquestNoFrameskip-v4") == [0, 1, 2] and paper.seeds_for("Ant-v5") == [0, 1, 2, 3, 4]
+    assert len(paper.runs()) == 5 * (4 * 5 + 4 * 3) and paper.all_seeds == [0, 1, 2, 3, 4]
+    from paper_lib.pipeline.config import read_params
+    from paper_lib.reporting.preregistration import Preregistration
+
+    prereg = Preregistration.from_params(read_params(params))
+    assert all(paper.seeds_for(env) == prereg.planned(env) for env in paper.envs)
     # every env at its own (the paper's) budget, Ant's 1e7 included since its runs landed (issue 38)
     assert paper.budget("Ant-v5") is None and paper.budget("HalfCheetah-v5") is None
     assert "the paper's training steps per run" in paper.budget_caption()
@@ -95,6 +102,9 @@ def test_a_bad_retraining_entry_is_refused(params, edit, match):
     (lambda p: p["run"].update(envs=["Hopper-v5"]), "unknown env 'Hopper-v5'"),
     (lambda p: p["run"].update(methods=["bayes"]), "unknown method 'bayes'"),
     (lambda p: p["run"].update(seeds=[]), "seeds must be a non-empty list"),
+    (lambda p: p["run"].update(seeds={"MuJoCo": [0, 1]}), r"seeds lacks \['Atari'\]"),
+    (lambda p: p["run"].update(seeds={"MuJoCo": [0], "Atari": [0], "Box2D": [0]}), r"unknown env family"),
+    (lambda p: p["run"].update(seeds={"MuJoCo": [0], "Atari": []}), "seeds.Atari must be a non-empty list"),
     (lambda p: p["run"].update(n_id_states=0), "n_id_states must be a positive integer"),
     (lambda p: p["run"].pop("eval_episodes"), "lacks"),
     (lambda p: p["run"].update(total_timesteps={"Hopper-v5": 1000}), "total_timesteps names unknown env 'Hopper-v5'"),
@@ -209,7 +219,7 @@ def test_queue_lists_the_training_line_of_each_missing_run_seed_major(params):
     use_profile("paper", params)
     cfg = load_run_config(params)
     lines = queue_lines(cfg, resume_root="/tmp/resume", envs=["Ant-v5", "Swimmer-v5"], methods=["baseline", "ensemble"])
-    assert len(lines) == 2 * 2 * len(cfg.seeds)
+    assert len(lines) == 2 * 2 * len(cfg.seeds_for("Ant-v5"))
     assert [line.split()[7] for line in lines[:4]] == ["0"] * 4, "every seed-0 run comes first"
     ant = [line for line in lines if " Ant-v5 " in line]
     assert all(line.startswith("env PAPER_LIB_RESUME_ROOT=/tmp/resume ") and line.endswith("--timesteps 1000000")

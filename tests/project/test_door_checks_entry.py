@@ -316,7 +316,7 @@ def test_config_show_names_the_keys_of_run_edited_away_from_its_profile(tmp_path
         params = yaml.safe_load(text)
         profile = params["run"]["profile"]
         params["run"]["eval_episodes"] = params["profiles"][profile]["eval_episodes"] + 1
-        params["run"]["seeds"] = params["profiles"][profile]["seeds"][:1]
+        params["run"]["seeds"] = [0]  # the profile's: a list, or one per env family (the paper profile's)
         return yaml.safe_dump(params, sort_keys=False)
 
     path = params_copy(tmp_path, edit_run)
@@ -347,7 +347,9 @@ def test_guard_budget_seeds_must_be_seeds_of_their_profile(tmp_path, profile):
 
     path = params_copy(tmp_path, seed_seven)
     before = snapshot(tmp_path)
-    seeds = yaml.safe_load(path.read_text())["profiles"][profile]["seeds"]
+    from paper_lib.pipeline.config import seeds_of
+
+    seeds = seeds_of(yaml.safe_load(path.read_text())["profiles"][profile]["seeds"])
     with pytest.raises(ValueError, match=rf"params\.yaml: guard\.budgets\.{profile}: seeds must be seeds of profile "
                                          rf"'{profile}', got \[7\] \(its runs have seeds {re.escape(str(seeds))}\)"):
         load_settings(path)
