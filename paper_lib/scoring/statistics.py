@@ -8,7 +8,10 @@ Draws. A run's states come in clusters (the states of one episode, or of one OOD
 independent), so `cluster_resamples` draws whole clusters; `state_resamples` draws single states, which gives
 intervals too narrow for such data. `resample_counts` is the one draw with replacement both build on, and
 `mean_replicates` the bootstrap of a mean (one seed's episodes). `stratified_resample` draws the runs of each env
-apart (rliable's stratified bootstrap, `reporting.aggregates`). `cell_rng` seeds each table cell on its own.
+apart (rliable's stratified bootstrap, `reporting.aggregates`; `stratified_resamples` draws many at once), and
+the floors of its aggregates (a mean of per-env means, or of per-env ratios of means) are Student's t
+(`stratified_t_interval`, `ratio_t_interval`: Welch-Satterthwaite over the envs) and the studentized bootstrap
+(`bootstrap_t_interval`). `cell_rng` seeds each table cell on its own.
 
 Seeds, then clusters. A cell that pools training seeds resamples seeds, then clusters within each
 (`seed_cluster_replicates`), and its interval (`seed_cluster_ci`) is never narrower than Student's t interval over
@@ -134,6 +137,22 @@ def stratified_replicates(statistic: Callable[..., object], matrices: Sequence[n
     return np.array([statistic(*(stratified_resample(m, rng) for m in matrices)) for _ in range(int(n_boot))])
 
 
+def stratified_resamples(matrices: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int) -> list[np.ndarray]:
+    """`n_boot` stratified resamples of each matrix at once: one (n_boot, runs, envs) array per matrix, each matrix
+    drawn on its own (in the order given), each env's runs apart, as `stratified_resample`.
+
+    One draw per matrix instead of one per replicate (about 80 times faster), so a statistic vectorized over the
+    first axis (and a coverage simulation of it) stays fast; its numbers differ from `stratified_replicates`'.
+    """
+    check_bootstrap_args(rng, n_boot, 0.95)
+    out = []
+    for matrix in matrices:
+        m = np.asarray(matrix)
+        rows = rng.integers(0, m.shape[0], size=(int(n_boot), *m.shape))
+        out.append(np.take_along_axis(m[None], rows, axis=1))
+    return out
+
+
 # ----------------------------------------------------------------------------- intervals
 
 
@@ -179,6 +198,106 @@ def welch_interval(a: ArrayLike, b: ArrayLike, level: float = 0.95) -> tuple[flo
     dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1)) if se > 0 else 1.0
     half = float(student_t.ppf(0.5 + level / 2.0, dof) * se)
     return float(a.mean() - b.mean() - half), float(a.mean() - b.mean() + half)
+
+
+def satterthwaite_interval(estimate: float, variances: ArrayLike, dofs: ArrayLike,
+                           level: float = 0.95) -> tuple[float, float]:
+    """t interval of an estimate whose variance is a sum of independent components, each estimated with its dof.
+
+    The Welch-Satterthwaite approximation: df = (sum v)^2 / sum(v^2 / dof). Welch's interval is the case of two
+    components; a mean of per-env means (components s_e^2 / (n_e E^2), dof n_e - 1) the stratified one. A zero
+    variance gives the point itself.
+    """
+    v, d = np.asarray(variances, dtype=float).ravel(), np.asarray(dofs, dtype=float).ravel()
+    if v.shape != d.shape or v.size == 0 or not (np.all(np.isfinite(v)) and np.all(v >= 0) and np.all(d > 0)):
+        raise ValueError(f"satterthwaite_interval needs one finite variance >= 0 and one dof > 0 per component, got "
+                         f"{v.tolist()} and {d.tolist()}.")
+    total = float(v.sum())
+    if total == 0.0:
+        return float(estimate), float(estimate)
+    dof = total ** 2 / float(np.sum(v ** 2 / d))
+    half = float(student_t.ppf(0.5 + level / 2.0, dof) * np.sqrt(total))
+    return float(estimate - half), float(estimate + half)
+
+
+def stratified_mean_variance(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(estimate, variance components, their dofs) of the mean of per-env means of (..., runs, envs) matrices.
+
+    Env e adds s_e^2 / (n_e E^2) (s_e: its runs' std, ddof=1) with n_e - 1 dof; leading axes are resamples, so a
+    bootstrap gets every replicate's standard error at once.
+    """
+    m = np.asarray(matrix, dtype=float)
+    runs, envs = m.shape[-2:]
+    return m.mean(axis=-2).mean(axis=-1), m.var(axis=-2, ddof=1) / runs / envs ** 2, np.full(envs, runs - 1.0)
+
+
+def ratio_mean_variance(numerator: np.ndarray, denominator: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(estimate, variance components, their dofs) of the mean over envs of mean(numerator_e) / mean(denominator_e),
+    (..., runs, envs) matrices of independent runs (a method's rewards over the baseline's mean in each env).
+
+    Delta method per env: var(xbar/ybar) ~ (s_x^2/n_x + r^2 s_y^2/n_y) / ybar^2, r = xbar/ybar, two independent
+    components per env (dof n_x - 1 and n_y - 1). Fieller's interval is exact under normality but unbounded once
+    ybar is not clearly nonzero; the callers check the denominator's runs share one sign, and this only ever widens
+    a bootstrap that re-draws the denominator, which carries the ratio's skew.
+    """
+    x, y = np.asarray(numerator, dtype=float), np.asarray(denominator, dtype=float)
+    (runs_x, envs), runs_y = x.shape[-2:], y.shape[-2]
+    ybar = y.mean(axis=-2)
+    ratio = x.mean(axis=-2) / ybar
+    parts = [x.var(axis=-2, ddof=1) / runs_x / ybar ** 2, ratio ** 2 * y.var(axis=-2, ddof=1) / runs_y / ybar ** 2]
+    dofs = np.concatenate([np.full(envs, runs_x - 1.0), np.full(envs, runs_y - 1.0)])
+    return ratio.mean(axis=-1), np.concatenate(parts, axis=-1) / envs ** 2, dofs
+
+
+def _finite_runs(name: str, *matrices: np.ndarray) -> list[np.ndarray]:
+    """The matrices as floats, or one ValueError: a t floor needs finite runs, two or more per env, the same envs."""
+    arrays = [np.asarray(m, dtype=float) for m in matrices]
+    if any(m.ndim != 2 or m.shape[0] < 2 or m.shape[1] == 0 or not np.all(np.isfinite(m)) for m in arrays) or len(
+            {m.shape[1] for m in arrays}) != 1:
+        raise ValueError(f"{name} needs finite (runs, envs) matrices over the same envs with two or more runs per env, "
+                         f"got shapes {[m.shape for m in arrays]}.")
+    return arrays
+
+
+def stratified_t_interval(matrix: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """Student's t floor of the mean of per-env means of a (runs, envs) matrix, runs of each env independent.
+
+    se = sqrt(sum_e s_e^2 / n_e) / E, df by Welch-Satterthwaite over the envs (`stratified_mean_variance`): the
+    stratified counterpart of `t_interval`, which a stratified percentile bootstrap over 3 runs per env falls short
+    of (it spans about each env's min-max, as with seeds).
+    """
+    (m,) = _finite_runs("stratified_t_interval", matrix)
+    estimate, variances, dofs = stratified_mean_variance(m)
+    return satterthwaite_interval(float(estimate), variances, dofs, level)
+
+
+def ratio_t_interval(numerator: np.ndarray, denominator: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """t floor of the mean over envs of per-env ratios of means (`ratio_mean_variance`, df by Welch-Satterthwaite
+    over its 2E components); the denominator's mean must be nonzero in every env."""
+    x, y = _finite_runs("ratio_t_interval", numerator, denominator)
+    if np.any(y.mean(axis=0) == 0):
+        raise ValueError("ratio_t_interval needs a nonzero denominator mean in every env.")
+    estimate, variances, dofs = ratio_mean_variance(x, y)
+    return satterthwaite_interval(float(estimate), variances, dofs, level)
+
+
+def bootstrap_t_interval(estimate: float, se: float, replicates: np.ndarray, replicate_ses: np.ndarray,
+                         level: float = 0.95) -> tuple[float, float]:
+    """The studentized (bootstrap-t) interval: estimate - q(1 - a) se, estimate - q(a) se, q the quantiles of
+    (replicate - estimate) / replicate_se.
+
+    Second-order accurate where t and the percentile interval are first-order (Hall 1988; Efron & Tibshirani 1993,
+    ch. 12): it follows the skew of the runs, which at 3-5 runs per env leaves t short on the long side. Replicates
+    whose se is 0 (every env's runs drawn alike) carry no studentized value and are left out; with none left, or
+    se 0, the point itself (a floor that widens nothing).
+    """
+    reps, ses = np.asarray(replicates, dtype=float), np.asarray(replicate_ses, dtype=float)
+    keep = ses > 0
+    if se <= 0 or not keep.any():
+        return float(estimate), float(estimate)
+    alpha = (1.0 - level) / 2.0
+    low_q, high_q = np.quantile((reps[keep] - estimate) / ses[keep], [alpha, 1.0 - alpha])
+    return float(estimate - high_q * se), float(estimate - low_q * se)
 
 
 def _widen(interval: tuple[float, float], floor: tuple[float, float]) -> tuple[float, float]:

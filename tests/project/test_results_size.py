@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-#: docs/deviations.md's budget for every file git tracks under results/ (the Atari issue's "500 MB at most").
-RESULTS_BUDGET_MB = 500
+#: docs/deviations.md's budget for every file git tracks under results/ (500 MB until issue 67's new seeds: "at most
+#: 900 MB").
+RESULTS_BUDGET_MB = 900
 
 
 def tracked_sizes(folder: str = "results") -> dict[str, int]:

@@ -6,12 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.stats import t as student_t
 
-from paper_lib.scoring.statistics import (cell_rng, cluster_resamples, difference_ci, mean_replicates, percentile_band,
-                                          resample_counts, seed_cluster_ci, seed_cluster_difference,
-                                          seed_cluster_replicates, seed_mean_ci, seed_mean_difference_ci, seed_mean_std,
-                                          stratified_interval, stratified_replicates, stratified_resample, t_interval,
-                                          welch_interval)
+from paper_lib.scoring.statistics import (bootstrap_t_interval, cell_rng, cluster_resamples, difference_ci,
+                                          mean_replicates, percentile_band, ratio_mean_variance, ratio_t_interval,
+                                          resample_counts, satterthwaite_interval, seed_cluster_ci,
+                                          seed_cluster_difference, seed_cluster_replicates, seed_mean_ci,
+                                          seed_mean_difference_ci, seed_mean_std, stratified_interval,
+                                          stratified_mean_variance, stratified_replicates, stratified_resample,
+                                          stratified_resamples, stratified_t_interval, t_interval, welch_interval)
 
 
 # ------------------------------------------------------------------------------------------------- seeds, then clusters
@@ -190,3 +193,70 @@ def test_cell_rng_depends_on_the_seed_and_the_key_only():
     assert np.array_equal(cell_rng(0, "E", "m", True).random(3), cell_rng(0, "E", "m", True).random(3))
     assert not np.array_equal(cell_rng(0, "E", "m").random(3), cell_rng(1, "E", "m").random(3))
     assert not np.array_equal(cell_rng(0, "E", "m").random(3), cell_rng(0, "E", "n").random(3))
+
+
+# ------------------------------------------------------------------------------------------------- floors across envs
+def test_stratified_resamples_draw_each_env_apart_all_at_once():
+    x, y = np.arange(6.0).reshape(3, 2), 10 + np.arange(6.0).reshape(3, 2)
+    a, b = stratified_resamples([x, y], np.random.default_rng(5), 200)
+    assert a.shape == b.shape == (200, 3, 2)
+    assert set(a[:, :, 0].ravel()) == {0.0, 2.0, 4.0} and set(b[:, :, 1].ravel()) == {11.0, 13.0, 15.0}
+    again = stratified_resamples([x, y], np.random.default_rng(5), 200)
+    assert np.array_equal(a, again[0]) and np.array_equal(b, again[1])
+    assert np.array_equal(stratified_resamples([x], np.random.default_rng(5), 200)[0], a)  # each matrix in turn
+    assert not np.array_equal(a - x.min(), b - y.min())  # drawn apart, not with the same rows
+    with pytest.raises(ValueError, match="n_boot"):
+        stratified_resamples([x], np.random.default_rng(0), 0)
+
+
+def test_satterthwaite_interval_is_welch_for_two_samples_and_t_for_one():
+    a, b = np.array([1.0, 2.0, 4.0]), np.array([0.0, 0.5, 2.5, 3.0])
+    welch = satterthwaite_interval(a.mean() - b.mean(), [a.var(ddof=1) / 3, b.var(ddof=1) / 4], [2, 3])
+    assert welch == pytest.approx(welch_interval(a, b))
+    assert satterthwaite_interval(a.mean(), [a.var(ddof=1) / 3], [2]) == pytest.approx(t_interval(a))
+    assert satterthwaite_interval(0.7, [0.0, 0.0], [2, 2]) == (0.7, 0.7)
+    with pytest.raises(ValueError, match="one dof > 0 per component"):
+        satterthwaite_interval(0.0, [1.0, np.nan], [2, 2])
+
+
+def test_stratified_t_interval_pools_the_envs_variances_with_satterthwaite_df():
+    matrix = np.array([[0.60, 0.90], [0.70, 0.80], [0.80, 0.85]])
+    assert stratified_t_interval(matrix[:, :1]) == pytest.approx(t_interval(matrix[:, 0]))  # one env: t over its runs
+    v = matrix.var(axis=0, ddof=1) / 3
+    se, df = np.sqrt(v.sum()) / 2, v.sum() ** 2 / np.sum(v ** 2 / 2)
+    half = student_t.ppf(0.975, df) * se
+    assert stratified_t_interval(matrix) == pytest.approx((matrix.mean() - half, matrix.mean() + half))
+    estimate, parts, dofs = stratified_mean_variance(np.stack([matrix, matrix[::-1]]))  # batched: per resample
+    assert estimate == pytest.approx([matrix.mean()] * 2) and parts.shape == (2, 2) and dofs.tolist() == [2.0, 2.0]
+    with pytest.raises(ValueError, match="two or more runs per env"):
+        stratified_t_interval(matrix[:1])
+
+
+def test_ratio_t_interval_adds_the_denominators_delta_method_variance():
+    x = np.array([[90.0, 5.0], [110.0, 7.0], [100.0, 6.0]])
+    steady = np.array([[100.0, 10.0]] * 3)
+    assert ratio_t_interval(x, steady) == pytest.approx(stratified_t_interval(x / 10 ** np.array([2, 1])))
+    noisy = np.array([[80.0, 9.0], [120.0, 11.0], [100.0, 10.0]])
+    low, high = ratio_t_interval(x, noisy)
+    s_low, s_high = ratio_t_interval(x, steady)
+    assert low < s_low and high > s_high
+    estimate, parts, dofs = ratio_mean_variance(x, noisy)
+    ratio = x.mean(axis=0) / noisy.mean(axis=0)
+    assert estimate == pytest.approx(ratio.mean()) and dofs.tolist() == [2.0, 2.0, 2.0, 2.0]
+    assert parts[2] == pytest.approx(ratio[0] ** 2 * noisy[:, 0].var(ddof=1) / 3 / 100 ** 2 / 4)
+    with pytest.raises(ValueError, match="nonzero denominator"):
+        ratio_t_interval(x, np.array([[1.0, 1.0], [-1.0, 1.0], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match="same envs"):
+        ratio_t_interval(x, noisy[:, :1])
+
+
+def test_bootstrap_t_interval_follows_the_skew_of_the_studentized_replicates():
+    t_values = np.linspace(-2.0, 4.0, 1001)  # right-skewed studentized replicates, se 1 each
+    low, high = bootstrap_t_interval(10.0, 0.5, 10.0 + t_values, np.ones_like(t_values), level=0.9)
+    q_low, q_high = np.quantile(t_values, [0.05, 0.95])
+    assert (low, high) == pytest.approx((10.0 - 0.5 * q_high, 10.0 - 0.5 * q_low))
+    assert 10.0 - low > high - 10.0  # a long right tail of (replicate - estimate) moves the interval down
+    with_zero = bootstrap_t_interval(10.0, 0.5, np.append(10.0 + t_values, 50.0), np.append(np.ones_like(t_values), 0),
+                                     level=0.9)
+    assert with_zero == (low, high)  # a replicate without spread is left out
+    assert bootstrap_t_interval(3.0, 0.0, t_values, np.ones_like(t_values)) == (3.0, 3.0)
