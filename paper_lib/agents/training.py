@@ -27,6 +27,8 @@ import shlex
 import sys
 import time
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -217,6 +219,50 @@ def check_run_folder(folder: Path, what: str) -> None:
                                "folder (it was left as it is)")
 
 
+IDENTITY_KEYS = ("algo", "env_id", "method", "seed")
+
+
+def _identity(algo: str, env_id: str, method: str, seed: int) -> str:
+    return f"{algo} {env_id} {method} seed {seed}"
+
+
+def check_same_run(out_dir: Path, algo: str, env_id: str, method: str, seed: int) -> None:
+    """A folder holding another run's finished checkpoint (any algorithm, env, method or seed) is refused, naming
+    both: training would replace it whole, and a committed checkpoint has no resume point to come back from."""
+    try:
+        found = json.loads((out_dir / "config.json").read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(found, dict) or not all(key in found for key in IDENTITY_KEYS):
+        return
+    theirs = tuple(found[key] for key in IDENTITY_KEYS)
+    if theirs != (algo, env_id, method, seed):
+        raise DestinationError(f"{out_dir} holds the finished run {_identity(*theirs)}; training "
+                               f"{_identity(algo, env_id, method, seed)} there would replace it. Give this run its "
+                               "own folder (the other was left as it is)")
+
+
+@contextmanager
+def run_lock(out_dir: Path) -> Iterator[Path]:
+    """One writer per run folder: an OS file lock beside it (`.<name>.lock`), held while training and dropped by the
+    kernel if the process dies, so a second training into the same folder stops at once instead of racing."""
+    from filelock import FileLock, Timeout
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    path = out_dir.parent / f".{out_dir.name}.lock"
+    lock = FileLock(path, timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise DestinationError(f"another process is training into {out_dir} (it holds {path}); wait for it to "
+                               "finish or give this run another folder (nothing was changed)") from None
+    try:
+        yield path
+    finally:
+        lock.release()
+        path.unlink(missing_ok=True)  # a killed holder's file stays (results/**/.*.lock is git-ignored); no lock
+
+
 def finished_budget(out_dir: Path) -> int | None:
     """The budget (total_timesteps) of the finished run in `out_dir`, or None where there is none to read."""
     try:
@@ -249,13 +295,24 @@ def train_run(env_id: str, method: str, seed: int, out_dir: str | Path, algo: st
               resume_every: int = RESUME_EVERY, tensorboard: bool = False) -> Path:
     """Train (continuing from the last resume point if `resume`) and write the checkpoint folder.
 
-    The destination is checked first (ValueError): a file or a foreign folder at `out_dir`, or, when
-    resuming, a run there already past this budget, is refused before any training.
+    The destination is checked first (ValueError): a file or a foreign folder at `out_dir`, another run's
+    finished checkpoint there, a second training into the same folder (`run_lock`), or, when resuming, a run there
+    already past this budget, is refused before any training.
     """
-    th.set_num_threads(torch_threads)
     out_dir = Path(out_dir)
-    resume_dir = resume_dir_for(out_dir)
     check_run_folder(out_dir, "checkpoint folder")
+    check_same_run(out_dir, algo, env_id, method, seed)
+    with run_lock(out_dir):
+        return _train_locked(env_id, method, seed, out_dir, algo, total_timesteps, agent_kwargs, torch_threads,
+                             progress_bar, resume, resume_every, tensorboard)
+
+
+def _train_locked(env_id: str, method: str, seed: int, out_dir: Path, algo: str, total_timesteps: int | None,
+                  agent_kwargs: dict[str, Any] | None, torch_threads: int, progress_bar: bool, resume: bool,
+                  resume_every: int, tensorboard: bool) -> Path:
+    """`train_run` once this process holds the run folder's lock."""
+    th.set_num_threads(torch_threads)
+    resume_dir = resume_dir_for(out_dir)
     check_run_folder(resume_dir, "resume point folder")
     agent_kwargs = dict(agent_kwargs or {})
     if tensorboard:

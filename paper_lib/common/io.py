@@ -8,11 +8,16 @@ after the write succeeded.
 
 Every temporary folder holds a marker file (`TEMP_MARKER`): a folder left by a
 killed writer is deleted (or put back) only when it carries the marker, so a
-user's own `.<name>.something` beside a target is never touched.
+user's own `.<name>.something` beside a target is never touched. A file writer
+holds an advisory lock (flock) on its marker while it writes, which the kernel
+drops when the process dies: the next write of the same file deletes the
+temporary folders whose marker nobody holds (a killed writer's), never a live
+writer's, so a killed rebuild leaves nothing behind once it is run again.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -65,6 +70,53 @@ def _temp_dir(parent: Path, name: str) -> Path:
     tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{name}.", suffix=".tmp"))
     _mark(tmp)
     return tmp
+
+
+def _held_temp_dir(parent: Path, name: str) -> tuple[Path, int]:
+    """`_temp_dir` whose marker this process holds locked (flock) until `_release`: a live writer's temp.
+
+    The marker is locked before its text is written, so a sweeper that finds the text finds the lock held.
+    """
+    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{name}.", suffix=".tmp"))
+    fd = os.open(tmp / TEMP_MARKER, os.O_WRONLY | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.write(fd, _MARKER_TEXT.encode())
+    return tmp, fd
+
+
+def _release(fd: int) -> None:
+    os.close(fd)  # closing drops the flock
+
+
+def _writer_is_gone(folder: Path) -> bool:
+    """Whether no live process holds `folder`'s marker locked (its writer finished or was killed)."""
+    try:
+        fd = os.open(folder / TEMP_MARKER, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def remove_dead_temps(path: str | os.PathLike[str]) -> list[Path]:
+    """Delete the marked temporary folders of file `path` whose writer is gone (their marker unlocked).
+
+    Safe beside concurrent writers of the same file: a live writer holds its marker locked. Returns them.
+    """
+    target = Path(path)
+    if not target.parent.is_dir():
+        return []
+    pattern = _temp_pattern(target.name)
+    dead = sorted(entry for entry in target.parent.iterdir()
+                  if pattern.fullmatch(entry.name) and is_ours(entry) and _writer_is_gone(entry))
+    for entry in dead:
+        shutil.rmtree(entry, ignore_errors=True)
+    return dead
 
 
 def _temp_pattern(name: str) -> re.Pattern[str]:
@@ -135,7 +187,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     The temporary file has ``path``'s name inside a marked temporary folder, so libraries that choose
     a format from the file extension (matplotlib, numpy) behave as for the real name. On any exception
-    the temporary folder is deleted and the target is left untouched.
+    the temporary folder is deleted and the target is left untouched; a kill leaves it, and the next
+    write of ``path`` deletes it (`remove_dead_temps`).
     """
     target = Path(path)
     if target.name == TEMP_MARKER:
@@ -143,7 +196,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
                                "give the file another name")
     check_file_destination(target, "file")
     target.parent.mkdir(parents=True, exist_ok=True)
-    stage = _temp_dir(target.parent, target.name)
+    remove_dead_temps(target)  # a killed earlier writer's temp (issue 71: `git status` clean after a rerun)
+    stage, held = _held_temp_dir(target.parent, target.name)
     tmp = stage / target.name
     try:
         tmp.touch()  # an empty file, as mkstemp gave: writers may open it for update
@@ -152,6 +206,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp, target)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        _release(held)
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:

@@ -211,3 +211,26 @@ def test_envs_in_subprocesses_train_the_same_agent(tmp_path):
         venv = getattr(venv, "venv", None)
     model.get_env().close()
     assert layers[-1] == "SubprocVecEnv", layers
+
+
+def test_one_writer_per_run_folder_and_no_run_replaces_another(tmp_path):
+    """Issue 71: two trainings into one folder, or another run's training into a finished run's folder whose resume
+    point is gone (every committed checkpoint in a clone), stop before any work, naming what is there."""
+    import json
+
+    from paper_lib.agents.training import run_lock
+    from paper_lib.common.io import DestinationError
+
+    out = tmp_path / "cc"
+    with run_lock(out):
+        with pytest.raises(DestinationError, match=r"another process is training into .*cc"):
+            train_run("CartPole-v1", "masksembles", 1, out, total_timesteps=64)
+    assert not (tmp_path / ".cc.lock").exists() and not out.exists()
+    out.mkdir()
+    finished = {"algo": "ppo", "env_id": "CartPole-v1", "method": "masksembles", "seed": 0, "total_timesteps": 64}
+    (out / "config.json").write_text(json.dumps(finished))
+    (out / "model.zip").write_text("the finished run's weights")
+    with pytest.raises(DestinationError, match=r"holds the finished run ppo CartPole-v1 masksembles seed 0; "
+                                               r"training ppo CartPole-v1 mc_dropout seed 1 there would replace it"):
+        train_run("CartPole-v1", "mc_dropout", 1, out, total_timesteps=64)
+    assert (out / "model.zip").read_text() == "the finished run's weights"

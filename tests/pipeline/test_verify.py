@@ -105,3 +105,28 @@ def test_reward_files_whose_labels_differ_are_another_table(tmp_path):
     relabelled = _episodes(committed).replace("Walker2d-v5", "Ant-v5")
     found = compare_files(*_pair(tmp_path, _episodes(committed), relabelled.replace(",1.0,", ",1.5,")))
     assert found.result == "differs"
+
+
+def test_float_noise_is_judged_by_the_states_behind_a_number_and_a_tampered_auroc_fails(tmp_path):
+    """Issue 71: another CPU swaps a few nearly tied states (ROC tpr 4e-4 at 5000 OOD states, AUPR 1e-5), and a
+    std of nearly equal member values loses digits; none of that is a failure, while an AUROC moved by 0.01 is."""
+    from paper_lib.pipeline.verify import PASSING
+
+    states = (1000, 5000)
+    roc = compare_files(*_pair(tmp_path, "fpr,tpr\n0.1,0.8\n0.2,0.9\n", "fpr,tpr\n0.1,0.8004\n0.2,0.9\n"), states)
+    assert roc.result == "within tolerance" and roc.result in PASSING
+    assert compare_files(*_pair(tmp_path, "fpr,tpr\n0.1,0.8\n", "fpr,tpr\n0.1,0.8004\n")).result == "numbers differ"
+    metrics = "measure,auroc,aupr_in,n_id\nvalue_std,0.90,0.60,1000\n"
+    noisy = "measure,auroc,aupr_in,n_id\nvalue_std,0.9000018,0.6000109,1000\n"
+    assert compare_files(*_pair(tmp_path, metrics, noisy), states).result == "within tolerance"
+    tampered = compare_files(*_pair(tmp_path, metrics, "measure,auroc,aupr_in,n_id\nvalue_std,0.91,0.60,1000\n"),
+                             states)
+    assert tampered.result == "numbers differ" and tampered.column == "auroc"
+    recount = compare_files(*_pair(tmp_path, metrics, "measure,auroc,aupr_in,n_id\nvalue_std,0.90,0.60,1001\n"),
+                            states)
+    assert recount.result == "numbers differ" and recount.column == "n_id"  # a count is never noise
+    values = "step,value_std\n0,0.337\n1,0.05\n2,0.9\n"
+    assert compare_files(*_pair(tmp_path, values, "step,value_std\n0,0.3372\n1,0.05\n2,0.9\n")).result \
+        == "within tolerance"
+    assert compare_files(*_pair(tmp_path, values, "step,value_std\n0,0.347\n1,0.05\n2,0.9\n")).result \
+        == "numbers differ"

@@ -264,3 +264,51 @@ def test_kill_9_during_collection_never_loses_a_dataset(tmp_path, monkeypatch):
     np.testing.assert_array_equal(StateDataset.load(dataset).states, first.states)
     left = sorted(p.name for p in dataset.parent.iterdir())
     assert left == [dataset.name], f"temporary files of killed runs remain: {left}"
+
+
+# ---------------------------------------------------------------- a killed file writer's temp (issue 71, item 4)
+
+HOLD_OPEN = """
+import sys, time
+from paper_lib.common.io import atomic_path
+with atomic_path(sys.argv[1]) as tmp:
+    tmp.write_text("half of a figure")
+    print("writing", flush=True)
+    time.sleep(60)
+"""
+
+
+def _writer(target: Path) -> subprocess.Popen:
+    """A real process inside `atomic_path(target)`, once it says so."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLD_OPEN, str(target)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "writing"
+    return proc
+
+
+def _temps(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp"))
+
+
+def test_the_next_write_sweeps_a_killed_writers_temp_and_never_a_live_ones(tmp_path):
+    """kill -9 inside a write leaves `.<name>.<random>.tmp/`; writing the file again removes it (git status stays
+    clean after a killed `make reproduce` is run again), while a writer still alive keeps its temp."""
+    from paper_lib.common.io import write_text_atomic
+
+    target = tmp_path / "roc_value_policy.png"
+    killed = _writer(target)
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait()
+    left = _temps(tmp_path)
+    assert len(left) == 1 and not target.exists()
+    alive = _writer(target)
+    try:
+        write_text_atomic(target, "the figure")
+        assert target.read_text() == "the figure"
+        remaining = _temps(tmp_path)
+        assert left[0] not in remaining, "the killed writer's temp was left"
+        assert len(remaining) == 1, "the live writer's temp must stay"
+    finally:
+        alive.kill()
+        alive.wait()
+    write_text_atomic(target, "again")
+    assert _temps(tmp_path) == []

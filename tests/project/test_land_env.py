@@ -21,6 +21,7 @@ def dry_run(tmp_path: Path, params: dict, env_id: str) -> subprocess.CompletedPr
 def committed_params() -> dict:
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     params.pop("retraining", None)  # the committed runs are what `hyperparameters` trains
+    params["run"]["seeds"] = [0, 1, 2]  # the committed seeds (issue 67's new ones land run by run, not with this)
     return params
 
 
