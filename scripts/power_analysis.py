@@ -6,7 +6,8 @@
 
 It reads only the seeds params.yaml's `preregistration.power_seeds` names (0-2, all committed before the
 registration), from the committed per-run files: the reward episodes (tables/reward_episodes.csv), each run's
-per-seed metrics.csv, and the spawn experiment's summary. Seeds landing later do not change its output, so
+per-seed metrics.csv, the member runs' common-state scores (the AUROC order reads those), and the spawn
+experiment's summary. Seeds landing later do not change its output, so
 `--check` (tests/reporting/test_preregistration.py) confirms the file on any later commit. The claims table
 (notebook 6) reads the file; it is never rebuilt by `make reproduce`.
 """
@@ -22,7 +23,9 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from paper_lib.pipeline.common_states import read_common  # noqa: E402
 from paper_lib.pipeline.config import load_run_config, read_params  # noqa: E402
+from paper_lib.pipeline.layout import common_runs  # noqa: E402
 from paper_lib.reporting.claims import AUROC_ORDER_PAIRS, SPREAD_MEASURES  # noqa: E402
 from paper_lib.reporting.paper_tables import _is_detector, best_detectors  # noqa: E402
 from paper_lib.reporting.preregistration import Preregistration, power_table  # noqa: E402
@@ -46,8 +49,11 @@ def build(root: Path = ROOT) -> pd.DataFrame:
     episodes = pd.read_csv(cfg.layout.reward_episodes)
     spawn_path = cfg.layout.spawn_file("summary")
     spawn = pd.read_csv(spawn_path) if spawn_path.exists() else None
+    scored = [run for run in cfg.runs() if run[2] in prereg.power_seeds
+              and (cfg.layout.scores_dir(*run) / "metrics.csv").exists()]
+    common, _ = read_common(cfg, common_runs(scored))  # the states the AUROC-order claim reads
     return power_table(episodes, metrics, spawn, prereg, AUROC_ORDER_PAIRS, SPREAD_MEASURES, _is_detector,
-                       best_detectors(metrics))
+                       best_detectors(metrics), common)
 
 
 def markdown(table: pd.DataFrame) -> str:

@@ -11,6 +11,7 @@ exactly those: a path renamed here or there and not in both places fails that te
       datasets/<env>/<method>/seed<s>.npz                its ID and OOD states    (collect)
       evaluations/<env>/<method>/seed<s>.csv             its reward episodes      (evaluate)
       scores/<env>/<method>/seed<s>/                     its OOD scores           (score)
+      common_scores/<env>/<method>/seed<s>/              a member run on the baseline's states of its seed (common_score)
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
       tables/<folder>/, figures/<folder>/                what a notebook writes whole (STAGE_TABLE_FOLDERS, ...)
       tables/reward_episodes.csv                         every evaluation episode, as notebook 02 read them
@@ -71,7 +72,7 @@ NOTEBOOKS = {"quickstart": "00_quickstart", "rewards": "02_rewards", "ood": "03_
 STAGE_TABLES = {
     "rewards": ("rewards", "rewards_long", "reward_repeated_games", "reward_vs_baseline", "reward_aggregates",
                 "reward_improvement"),
-    "ood": ("auroc_between_methods", "auroc_aggregates", "auroc_improvement", "ood_trivially_separable", "ood_metrics",
+    "ood": ("auroc_between_methods", "auroc_between_methods_own", "auroc_aggregates", "auroc_improvement", "ood_trivially_separable", "ood_metrics",
             "ood_auroc_perturbed", "ood_auroc_noise", "auroc_vs_detectors", "auroc_members_vs_baseline"),
     "training_and_perturbations": ("perturbation_ratios",),
     "paper_vs_us": ("paper_claims", "paper_vs_us_rewards", "paper_vs_us_auroc"),
@@ -98,11 +99,24 @@ FIGURE_STEMS = frozenset(stem for stems in STAGE_FIGURES.values() for stem in st
 PAPER_VS_US_READS = ("rewards_long", "ood_metrics", "reward_vs_baseline", "auroc_vs_detectors", "auroc_between_methods")
 #: The per-run stages of dvc.yaml (`foreach` over runs.yaml), in pipeline order.
 RUN_STAGES = ("train", "collect", "evaluate", "score")
+#: The per-run stage of the member runs whose seed has a baseline run (`common_runs`; runs.yaml's common_runs).
+COMMON_STAGE = "common_score"
 
 
 def results_dir(root: str | Path, profile: str) -> Path:
     """results/<profile>/ below the repository root `root`."""
     return Path(root) / RESULTS / profile
+
+
+#: Whose states every member method also scores, for comparisons between methods on one state set (issue 66).
+COMMON_STATES_OF = "baseline"
+
+
+def common_runs(runs: list[Run]) -> list[Run]:
+    """The member runs among `runs` whose (env, seed) has a baseline run to take the states from
+    (paper_lib/pipeline/common_states.py scores them; runs.yaml's `common_runs`)."""
+    listed = set(runs)
+    return [run for run in runs if run[1] != COMMON_STATES_OF and (run[0], COMMON_STATES_OF, run[2]) in listed]
 
 
 def seed_name(seed: int) -> str:
@@ -299,8 +313,17 @@ class Layout:
         return self.folder("scores") / env_id / combination_name(members) / "metrics.csv"
 
     # --- dvc.yaml ------------------------------------------------------------------------------------------
+    def common_scores_dir(self, env_id: str, method: str, seed: int) -> Path:
+        """A member run's scores on the baseline's states of its seed (paper_lib/pipeline/common_states.py)."""
+        return self.results / "common_scores" / env_id / method / seed_name(seed)
+
     def stage_paths(self, stage: str, run: Run | None = None) -> StagePaths:
-        """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (one of RUN_STAGES)."""
+        """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (RUN_STAGES, COMMON_STAGE)."""
+        if stage == COMMON_STAGE:
+            if run is None or run not in common_runs([run, (run[0], COMMON_STATES_OF, run[2])]):
+                raise ValueError(f"stage {stage!r} is per member run: give one, e.g. (env, 'masksembles', 0)")
+            return StagePaths(deps=(self.checkpoint_dir(*run), self.dataset_path(run[0], COMMON_STATES_OF, run[2])),
+                              outs=(self.common_scores_dir(*run),))
         if stage in RUN_STAGES:
             if run is None:
                 raise ValueError(f"stage {stage!r} is per run: give the run")

@@ -5,7 +5,8 @@
     python -m paper_lib.pipeline.reproduce --retrain     # make retrain: plain `dvc repro`, trains missing or changed runs (hours)
 
 The default command only reads committed files and never steps an env: each run's `score` stage where DVC
-finds it stale (scoring reads a committed dataset), and every table and figure stage, forced, for the runs and
+finds it stale (scoring reads a committed dataset), each member run's `common_score` (the baseline's states of its
+seed) likewise, and every table and figure stage, forced, for the runs and
 recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
 the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments) belongs to `--recollect`: MuJoCo's last
 float bits differ across CPUs and chaotic episodes amplify them, so a simulated number would move from machine to
@@ -24,7 +25,7 @@ import tempfile
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS
+from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS, common_runs
 from paper_lib.pipeline.run_list import write_run_list
 from paper_lib.agents.envs import MUJOCO_ENVS
 from paper_lib.pipeline.status import (
@@ -154,6 +155,10 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     if runs:
         _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
               *[f"score@{stage_suffix(*run)}" for run in runs]])
+    common = common_runs(runs)  # each member run on its baseline's states too (issue 66)
+    if common:
+        _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
+              *[f"common_score@{stage_suffix(*run)}" for run in common]])
     if _ensembles_trained(cfg):
         make_ensemble_folders(cfg)  # the ensembles notebook's declared inputs
     stages, skipped = table_stages(cfg)

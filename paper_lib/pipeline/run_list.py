@@ -19,25 +19,32 @@ import yaml
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Run, stage_suffix  # not status: `config use` imports this module
+from paper_lib.pipeline.layout import Run, common_runs, stage_suffix  # not status: `config use` imports this module
 
 RUN_LIST = "runs.yaml"
 KEY = "committed_runs"
+#: The member runs that also score the baseline's states of their seed (paper_lib/pipeline/common_states.py).
+COMMON_KEY = "common_runs"
 HEADER = """\
 # The runs of the active profile that have train, collect, evaluate and score stages in dvc.yaml: those with a
 # committed checkpoint, so `dvc repro` on a fresh clone trains nothing (paper_lib/pipeline/run_list.py).
 # Written by the main command and `make retrain`; ask for a run to train with
 #   python -m paper_lib.pipeline.run_list --add <env> <method> <seed>
+# common_runs: the member runs whose seed has a baseline run; their `common_score` stages score the baseline's states.
 """
 
 
+def _entries(key: str, runs: list[Run]) -> str:
+    lines = "".join(f"  {stage_suffix(*run)}: {{env: {run[0]}, method: {run[1]}, seed: {run[2]}}}\n" for run in runs)
+    return f"{key}:{' {}' if not runs else ''}\n{lines}"
+
+
 def run_list_text(cfg: RunConfig, runs: list[Run]) -> str:
-    """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes)."""
+    """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes), and under
+    COMMON_KEY the member runs among them whose seed has a baseline run (the `common_score` stages)."""
     order = {run: i for i, run in enumerate(cfg.runs())}
     listed = sorted(set(runs), key=lambda run: order.get(run, len(order)))
-    entries = "".join(f"  {stage_suffix(*run)}: {{env: {run[0]}, method: {run[1]}, seed: {run[2]}}}\n"
-                      for run in listed)
-    return f"{HEADER}profile: {cfg.profile}\n{KEY}:{' {}' if not listed else ''}\n{entries}"
+    return f"{HEADER}profile: {cfg.profile}\n{_entries(KEY, listed)}{_entries(COMMON_KEY, common_runs(listed))}"
 
 
 def read_run_list(root: str | Path = ".") -> tuple[str | None, list[Run]]:

@@ -252,7 +252,7 @@ def auroc_claim(pairwise: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
 def _states_note(pairwise: pd.DataFrame) -> str:
     """Which states the AUROC order compared: the registered common set, or (until it is scored) each method's own."""
     if "states" in pairwise.columns and set(pairwise["states"]) == {"common"}:
-        return "on one common state set per (env, seed)"
+        return "on one common state set per (env, seed): the baseline's, scored by every method (paired)"
     return ("on each method's own states (the registered common-state comparison is not scored yet: "
             "docs/preregistration.md)")
 

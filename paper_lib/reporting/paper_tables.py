@@ -492,21 +492,26 @@ def auroc_members_vs_baseline(metrics: pd.DataFrame, replicates: Replicates, met
 
 #: The columns of `auroc_between_methods` (also of an empty result).
 PAIRWISE_COLUMNS = ["env", "ood_set", "measure", "method", "versus", "auroc", "versus_auroc", "difference", "ci_low",
-                    "ci_high", "family_size", "family_ci_low", "family_ci_high", "pairing", "n_seeds", "auroc_mc_se",
-                    "versus_auroc_mc_se", "difference_mc_se"]
+                    "ci_high", "family_size", "family_ci_low", "family_ci_high", "pairing", "states", "n_seeds",
+                    "auroc_mc_se", "versus_auroc_mc_se", "difference_mc_se"]
 
 
 def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: list[tuple[str, str]],
                           measures: tuple[str, ...], n_boot: int, seed: int = 0, ood_set: str = "perturbed",
-                          level: float = 0.95) -> pd.DataFrame:
+                          level: float = 0.95, states: str = "own") -> pd.DataFrame:
     """For each env and measure, AUROC(method) - AUROC(versus) over the seeds both have, with its interval.
 
-    Two agents, each on the states it collected: seed s of one is compared with seed s of the other
-    (seeds drawn once for both), cluster resamples independent ("seeds" pairing); the interval is at
-    least Student's t over the per-seed differences (`statistics.difference_ci`). Beside it, the simultaneous
-    interval over the `family_size` pairs of its (env, measure) (Bonferroni, from the same draws), for a verdict
-    that one pair of several is surely behind.
+    `states="own"`: two agents, each on the states it collected: seed s of one is compared with seed s of the
+    other (seeds drawn once for both), cluster resamples independent ("seeds" pairing). `states="common"`: both
+    scored the baseline's states of seed s (`pipeline.common_states`), drawn with the same cluster resamples, so
+    replicate i of both comes from the same states ("paired"). Either way the interval is at least Student's t
+    over the per-seed differences (`statistics.difference_ci`). Beside it, the simultaneous interval over the
+    `family_size` pairs of its (env, measure) (Bonferroni, from the same draws), for a verdict that one pair of
+    several is surely behind.
     """
+    if states not in ("own", "common"):
+        raise ValueError(f"states must be 'own' (each agent's) or 'common' (the baseline's), got {states!r}")
+    pairing = "paired" if states == "common" else "seeds"
     rows = []
     cells = metrics[metrics["ood_set"] == ood_set]
     for env in pd.unique(cells["env"]):
@@ -523,14 +528,14 @@ def auroc_between_methods(metrics: pd.DataFrame, replicates: Replicates, pairs: 
                 reps_a = [replicates[(env, method, s, ood_set, measure)] for s in seeds]
                 reps_b = [replicates[(env, versus, s, ood_set, measure)] for s in seeds]
                 family = _auroc_difference(a, b, reps_a, reps_b, cell_rng(seed, env, ood_set, measure, method, versus),
-                                           "seeds", n_boot, 1.0 - (1.0 - level) / family_size)
+                                           pairing, n_boot, 1.0 - (1.0 - level) / family_size)
                 rng = cell_rng(seed, env, ood_set, measure, method, versus)
                 rows.append({"env": env, "ood_set": ood_set, "measure": measure, "method": method, "versus": versus,
                              "auroc": a.mean(), "versus_auroc": b.mean(),
-                             **_auroc_difference(a, b, reps_a, reps_b, rng, "seeds", n_boot, level),
+                             **_auroc_difference(a, b, reps_a, reps_b, rng, pairing, n_boot, level),
                              "family_size": family_size, "family_ci_low": family["ci_low"],
                              "family_ci_high": family["ci_high"],
-                             "pairing": "seeds", "n_seeds": len(seeds),
+                             "pairing": pairing, "states": states, "n_seeds": len(seeds),
                              **_mc_errors(_seed_mc_se(metrics, env, method, ood_set, measure, seeds),
                                           _seed_mc_se(metrics, env, versus, ood_set, measure, seeds),
                                           "auroc", "versus_auroc")})

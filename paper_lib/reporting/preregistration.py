@@ -124,9 +124,9 @@ def _moments(diff: np.ndarray) -> tuple[float, float]:
 
 
 def auroc_order_power(metrics: pd.DataFrame, prereg: Preregistration, pairs: list[tuple[str, str]],
-                      measures: tuple[str, ...]) -> list[dict[str, Any]]:
+                      measures: tuple[str, ...], states: str = "each method's own states") -> list[dict[str, Any]]:
     """Per env: both measures hold (all 4 pairs' 95% intervals above 0) or both fail (some pair's simultaneous
-    interval over the 4 below 0)."""
+    interval over the 4 below 0); `metrics` are the per-seed AUROCs the claim reads (`states` names them)."""
     rows = []
     family = 1.0 - (1.0 - prereg.level) / len(pairs)
     for env in pd.unique(metrics["env"]):
@@ -148,8 +148,7 @@ def auroc_order_power(metrics: pd.DataFrame, prereg: Preregistration, pairs: lis
                                                   for a, b in pairs) for m in measures)
         rows.append(_row("auroc_order", env, len(pairs) * len(measures), estimate, at_hand, len(prereg.planned(env)),
                          decide if at_hand >= 2 else (lambda n: np.nan), prereg.power,
-                         "computed from each method's own states (the common states did not exist at registration)"
-                         if at_hand >= 2 else ""))
+                         f"computed from {states}" if at_hand >= 2 else ""))
     return rows
 
 
@@ -243,12 +242,16 @@ def js_power(metrics: pd.DataFrame, prereg: Preregistration) -> list[dict[str, A
 
 def power_table(episodes: pd.DataFrame, metrics: pd.DataFrame, spawn: pd.DataFrame | None, prereg: Preregistration,
                 pairs: list[tuple[str, str]], measures: tuple[str, ...], is_detector: Any,
-                best: pd.Series) -> pd.DataFrame:
-    """Every (claim, env)'s seeds needed, from the `prereg.power_seeds` rows of the given per-seed frames."""
+                best: pd.Series, common: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Every (claim, env)'s seeds needed, from the `prereg.power_seeds` rows of the given per-seed frames; the AUROC
+    order from `common` (the member methods on the baseline's states) where given, as the claim reads it."""
     keep = prereg.power_seeds
     episodes, metrics = episodes[episodes["seed"].isin(keep)], metrics[metrics["seed"].isin(keep)]
     spawn = spawn[spawn["seed"].isin(keep)] if spawn is not None else pd.DataFrame(columns=["env"])
-    rows = (reward_power(episodes, prereg) + auroc_order_power(metrics, prereg, pairs, measures)
+    order = (auroc_order_power(common[common["seed"].isin(keep)], prereg, pairs, measures,
+                               "the common states (the baseline's, scored by every method)")
+             if common is not None else auroc_order_power(metrics, prereg, pairs, measures))
+    rows = (reward_power(episodes, prereg) + order
             + levitation_power(spawn, prereg) + js_power(metrics, prereg)
             + detector_power(metrics, prereg, is_detector, best))
     return pd.DataFrame(rows, columns=POWER_COLUMNS)

@@ -192,3 +192,10 @@ def test_the_registered_defaults_are_params_yaml_s():
     default = ClaimDesign()
     assert (prereg.level, prereg.reward_margin, prereg.js_threshold, prereg.min_ood_conditions) == \
         (default.level, default.reward_margin, default.js_threshold, default.min_ood_conditions)
+
+
+def test_the_auroc_order_says_which_states_it_compared():
+    """The registered comparison is on the baseline's states; the own-states table says it is not that one."""
+    common = auroc_claim(_pairwise(SPLIT).assign(states="common"))[0]["evidence"]
+    own = auroc_claim(_pairwise(SPLIT).assign(states="own"))[0]["evidence"]
+    assert "one common state set per (env, seed)" in common and "own states" in own
