@@ -49,6 +49,19 @@ def for_policy(dataset, vecnormalize):
     return replace(dataset, policy_obs=vecnormalize.normalize_obs(dataset.states).astype(np.float32))
 
 
+def saved_normalizer(path: Path | None):
+    """A checkpoint's saved VecNormalize, its statistics frozen, without the env it wrapped: scoring reads committed
+    files and builds no env (`make reproduce` runs this stage; load_checkpoint has checked the pickle)."""
+    import pickle
+
+    if path is None:
+        return None
+    with open(path, "rb") as f:
+        normalizer = pickle.load(f)
+    normalizer.training = False
+    return normalizer
+
+
 def common_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict:
     """What the common-state scores are made from: this run's checkpoint and the baseline's dataset, by digest."""
     checkpoint = cfg.checkpoint_dir(env_id, method, seed)
@@ -76,7 +89,7 @@ def score_common_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> P
     provenance = common_provenance(cfg, env_id, method, seed)
     data = StateDataset.load(path)
     check_dataset_identity(data.metadata, path, env_id, STATES_OF, seed)
-    vecnormalize = ckpt.env(1, seed) if ckpt.vecnormalize_path is not None else None
+    vecnormalize = saved_normalizer(ckpt.vecnormalize_path)
     run = score_run(ckpt, for_policy(data, vecnormalize), seed, cfg.n_bootstrap,
                     n_scoring_seeds=getattr(cfg, "n_scoring_seeds", 1), vecnormalize=vecnormalize)
     metrics = run.metrics.assign(states="common", states_of=STATES_OF, env=env_id, method=method, seed=seed)
