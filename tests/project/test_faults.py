@@ -209,21 +209,26 @@ runpy.run_module("paper_lib.pipeline.stages", run_name="__main__", alter_sys=Tru
 """
 
 
-def kill_while_writing(cmd: list[str], cwd: Path, folder: Path, delay: float, still_there) -> None:
-    """Start `cmd`; SIGKILL it `delay` seconds after it first changes anything in `folder`."""
-    def state() -> list:
-        return sorted((e.name, e.stat().st_mtime_ns, e.stat().st_size) for e in os.scandir(folder))
+def kill_while_writing(cmd: list[str], cwd: Path, target: Path, delay: float, still_there) -> None:
+    """Start `cmd`; SIGKILL it `delay` seconds after the first bytes of `target`'s new copy are written.
 
-    before = state()
+    The kill is timed from the bytes themselves (the temp copy inside `.<name>.<random>.tmp/` growing past empty),
+    not from any change in the folder: the writer's temp folder, its lock marker and any other file the run writes
+    beside it appear before the first byte, and a kill timed from them could land before the write began.
+    """
+    def first_bytes_written() -> bool:
+        try:
+            return any(entry.name.startswith(f".{target.name}.") and entry.name.endswith(".tmp")
+                       and (entry / target.name).is_file() and (entry / target.name).stat().st_size > 0
+                       for entry in target.parent.iterdir())
+        except FileNotFoundError:  # the temp was moved or swept between listing and stat
+            return False
+
     proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         while proc.poll() is None:
             assert still_there(), "the complete artifact vanished while the run was going"
-            try:
-                changed = state() != before
-            except FileNotFoundError:  # an entry vanished between listing and stat: a change
-                changed = True
-            if changed:
+            if first_bytes_written():
                 time.sleep(delay)
                 proc.send_signal(signal.SIGKILL)
                 proc.wait()
@@ -256,7 +261,7 @@ def test_kill_9_during_collection_never_loses_a_dataset(tmp_path, monkeypatch):
     assert kill_until(1, rng, cpu, lambda at_cpu: run_and_kill(cmd, tmp_path, at_cpu, dataset.is_file), check) == 1
     # and a kill in the middle of writing the new dataset's bytes
     slow = [sys.executable, "-c", SLOW_WRITE, *cmd[3:]]
-    kill_while_writing(slow, tmp_path, dataset.parent, float(rng.uniform(0.0, 0.5)), dataset.is_file)
+    kill_while_writing(slow, tmp_path, dataset, float(rng.uniform(0.0, 0.5)), dataset.is_file)
     np.testing.assert_array_equal(StateDataset.load(dataset).states, first.states)
     beside = [p.name for p in dataset.parent.iterdir() if p != dataset]
     assert len(beside) == 1 and beside[0].startswith(f".{dataset.name}."), "the kill landed inside the write"
