@@ -149,17 +149,18 @@ def _std(x: np.ndarray) -> np.ndarray:
 class PEDMDetector:
     """Fit on ID transitions (``fit``), score any transitions (``score``): higher = more surprising s'."""
 
-    def __init__(self, config: PEDMConfig | None = None, seed: int = 0) -> None:
+    def __init__(self, config: PEDMConfig | None = None, seed: int = 0, device: str = "cpu") -> None:
         self.config = config or PEDMConfig()
         self.seed = int(seed)
+        self.device = torch.device(device)  # a GPU's floats differ from the CPU's: record which fit a run
         self.model_: ProbEnsemble | None = None
         self.history_: list[tuple[float, float]] = []
 
     def _standardize(self, s: np.ndarray, a: np.ndarray, s2: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         zs, za, zs2 = (s - self.obs_mu_) / self.obs_sigma_, (a - self.act_mu_) / self.act_sigma_, \
             (s2 - self.obs_mu_) / self.obs_sigma_
-        x = torch.tensor(np.concatenate([zs, za], axis=1), dtype=torch.float32)
-        return x, torch.tensor(zs2 - zs, dtype=torch.float32)
+        x = torch.tensor(np.concatenate([zs, za], axis=1), dtype=torch.float32, device=self.device)
+        return x, torch.tensor(zs2 - zs, dtype=torch.float32, device=self.device)
 
     def fit(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray, episodes: np.ndarray) -> "PEDMDetector":
         """Train on ID transitions; ``episodes`` (one id per transition) decides the held-out episodes."""
@@ -188,7 +189,7 @@ class PEDMDetector:
         x, y = self._standardize(s, a, s2)
         x_tr, y_tr, x_val, y_val = x[train], y[train], x[~train], y[~train]
 
-        model = ProbEnsemble(x.shape[1], y.shape[1], cfg, rng)
+        model = ProbEnsemble(x.shape[1], y.shape[1], cfg, rng).to(self.device)
         model.in_mu.copy_(x_tr.mean(0, keepdim=True))
         sigma = x_tr.std(0, keepdim=True)
         model.in_sigma.copy_(torch.where(sigma < 1e-12, torch.ones_like(sigma), sigma))
@@ -201,7 +202,7 @@ class PEDMDetector:
             model.train()
             losses = []
             for start in range(0, n, cfg.batch_size):
-                b = torch.from_numpy(idxs[:, start:start + cfg.batch_size])
+                b = torch.from_numpy(idxs[:, start:start + cfg.batch_size]).to(self.device)
                 mean, logvar = model(x_tr[b])
                 nll = ((mean - y_tr[b]) ** 2) * torch.exp(-logvar) + logvar
                 loss = nll.mean(-1).mean(-1).sum() + 0.01 * (model.max_logvar.sum() - model.min_logvar.sum())
@@ -225,7 +226,7 @@ class PEDMDetector:
     def _val_mse(self, model: ProbEnsemble, x_val: torch.Tensor, y_val: torch.Tensor, rng: np.random.Generator) -> float:
         model.eval()
         with torch.no_grad():
-            b = torch.from_numpy(rng.integers(len(x_val), size=(self.config.ens_size, len(x_val))))
+            b = torch.from_numpy(rng.integers(len(x_val), size=(self.config.ens_size, len(x_val)))).to(self.device)
             mean, _ = model(x_val[b])
             return float(((mean - y_val[b]) ** 2).mean(-1).mean(-1).mean())
 
@@ -241,7 +242,7 @@ class PEDMDetector:
                              f"{len(self.obs_mu_)} / {len(self.act_mu_)}; score transitions of the same env.")
         x, y = self._standardize(s, a, s2)
         mean, logvar = self.model_(x.expand(self.config.ens_size, -1, -1))
-        return mean.numpy(), torch.exp(logvar).numpy(), y.numpy()
+        return mean.cpu().numpy(), torch.exp(logvar).cpu().numpy(), y.cpu().numpy()
 
     def score(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray, chunk: int = 256) -> np.ndarray:
         """One score per transition (PEDM's min-over-particles squared error), in chunks to bound memory."""

@@ -153,7 +153,7 @@ def episode_seeds(seed: int, n_episodes: int) -> list[int]:
 def play_pedm_episodes(agent: Agent, env_id: str, kind: str | None, severity: str = "severe", n_episodes: int = 100,
                        seed: int = 0, deterministic: bool = True,
                        policy_obs: Callable[[np.ndarray], np.ndarray] | None = None,
-                       max_steps: int | None = None) -> dict[str, np.ndarray]:
+                       max_steps: int | None = None, injection_step: int | None = None) -> dict[str, np.ndarray]:
     """Play ``n_episodes`` and record every transition: obs, action, next_obs, reward, label, episode, step.
 
     ``action`` is what the agent chose (PEDM records the policy's action; the env perturbs it after);
@@ -161,11 +161,12 @@ def play_pedm_episodes(agent: Agent, env_id: str, kind: str | None, severity: st
     reads (a checkpoint's VecNormalize ``normalize_obs``). ``injection_step`` is per transition (-1 for
     ID episodes); an episode that ends before it has only label 0 (PEDM drops such episodes from its
     metrics, ``oodd_runner.py`` l. 142-144; `scoring.metrics.injection_metrics` does too). ``unstable``
-    marks the step where a simulation blew up (that episode ends there).
+    marks the step where a simulation blew up (that episode ends there). ``max_steps`` and a fixed
+    ``injection_step`` are for short tests; the protocol plays whole episodes with a random step.
     """
     if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
         raise ValueError(f"n_episodes must be a positive integer, got {n_episodes!r}.")
-    env = make_pedm_env(env_id, kind, severity, seed=seed)
+    env = make_pedm_env(env_id, kind, severity, injection_step=injection_step, seed=seed)
     rows: dict[str, list] = {k: [] for k in ("obs", "action", "next_obs", "reward", "label", "episode", "step",
                                              "injection_step", "unstable")}
     try:
