@@ -157,8 +157,8 @@ class PEDMDetector:
         self.history_: list[tuple[float, float]] = []
 
     def _standardize(self, s: np.ndarray, a: np.ndarray, s2: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-        zs, za, zs2 = (s - self.obs_mu_) / self.obs_sigma_, (a - self.act_mu_) / self.act_sigma_, \
-            (s2 - self.obs_mu_) / self.obs_sigma_
+        zs, zs2 = (s - self.obs_mu_) / self.obs_sigma_, (s2 - self.obs_mu_) / self.obs_sigma_
+        za = (a - self.act_mu_) / self.act_sigma_
         x = torch.tensor(np.concatenate([zs, za], axis=1), dtype=torch.float32, device=self.device)
         return x, torch.tensor(zs2 - zs, dtype=torch.float32, device=self.device)
 
@@ -177,8 +177,8 @@ class PEDMDetector:
         if n_train < 1 or (cfg.holdout_fraction > 0 and n_train == len(names)):
             raise ValueError(f"PEDMDetector.fit got {len(names)} episode(s): holding out {cfg.holdout_fraction:.0%} "
                              "needs at least one episode on each side; pass more ID episodes.")
-        train_eps = {names[i] for i in order[:n_train]}
-        train = np.isin(ep, list(train_eps))
+        train_eps = [names[i] for i in sorted(order[:n_train])]  # a list, not a set: no hash-seed dependent order
+        train = np.isin(ep, train_eps)
         if train.sum() < 2:
             raise ValueError(f"PEDMDetector.fit needs at least 2 training transitions, got {int(train.sum())}.")
         # base_detector.py: statistics over the training episodes' states (each episode's s_0..s_T) and actions.
