@@ -248,3 +248,78 @@ def metrics_table(
         rows.append({"measure": measure, **row})
     return pd.DataFrame(rows)
 
+
+
+# --------------------------------------------------------------- PEDM's protocol: per-step labels
+
+
+def _per_step(scores: ArrayLike, labels: ArrayLike, episodes: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = _as_scores(scores, "scores")
+    y, ep = np.asarray(labels), np.asarray(episodes)
+    if y.shape != s.shape or ep.shape != s.shape:
+        raise ValueError(f"scores {s.shape}, labels {y.shape} and episodes {ep.shape} need one entry per step each.")
+    if not np.isin(y, (0, 1)).all():
+        raise ValueError("labels must be 0 (before the injection) or 1 (from it on).")
+    return s, y.astype(int), ep
+
+
+def injection_metrics(scores: ArrayLike, labels: ArrayLike, episodes: ArrayLike,
+                      rng: np.random.Generator | None = None, n_boot: int = 1000) -> dict[str, float | int | str]:
+    """PEDM's metrics of one (kind, severity): AUROC, AP (``aupr_out``), FPR@95 on the pooled per-step scores.
+
+    As PEDM (``oodd_runner.py`` l. 140-149), an episode that ended before its injection is left out.
+    With ``rng``, the AUROC also gets our cluster-bootstrap interval, clusters = episodes (each side's
+    steps resampled by whole episodes; see `measure_metrics` for the columns).
+    """
+    s, y, ep = _per_step(scores, labels, episodes)
+    injected = np.unique(ep[y == 1])
+    keep = np.isin(ep, injected)
+    dropped = int(np.unique(ep).size - injected.size)
+    if not (y[keep] == 0).any() or not (y[keep] == 1).any():
+        raise ValueError("injection_metrics needs steps before and after an injection in at least one episode.")
+    id_s, ood_s = s[keep & (y == 0)], s[keep & (y == 1)]
+    if rng is None:
+        row: dict[str, float | int | str] = dict(detection_metrics(id_s, ood_s))
+    else:
+        row, _ = measure_metrics(id_s, ood_s, rng, n_boot=n_boot, id_clusters=ep[keep & (y == 0)],
+                                 ood_clusters=ep[keep & (y == 1)])
+    return {**row, "n_episodes": int(injected.size), "n_episodes_dropped": dropped}
+
+
+def delay_threshold(id_scores: ArrayLike, fpr: float = 0.05) -> float:
+    """The score above which a step is flagged: the (1 - fpr) quantile of ID steps' scores (held-out ID episodes)."""
+    if not 0.0 < fpr < 1.0:
+        raise ValueError(f"fpr must lie strictly between 0 and 1, got {fpr!r}.")
+    return float(np.quantile(_as_scores(id_scores, "id_scores"), 1.0 - fpr))
+
+
+def detection_delays(scores: ArrayLike, labels: ArrayLike, episodes: ArrayLike, threshold: float) -> pd.DataFrame:
+    """Per injected episode: steps from the injection to the first step scored above ``threshold``.
+
+    Steps are taken in the order given within each episode. ``delay`` is 0 when the first perturbed
+    transition is flagged and NaN when none is; ``false_alarm`` says whether a step before the
+    injection was flagged already.
+    """
+    s, y, ep = _per_step(scores, labels, episodes)
+    rows = []
+    for e in dict.fromkeys(ep.tolist()):
+        se, ye = s[ep == e], y[ep == e]
+        if not ye.any():
+            continue
+        start = int(np.argmax(ye == 1))
+        flagged = np.flatnonzero(se[start:] > threshold)
+        rows.append({"episode": e, "injection_index": start, "delay": float(flagged[0]) if flagged.size else np.nan,
+                     "false_alarm": bool((se[:start] > threshold).any())})
+    return pd.DataFrame(rows, columns=["episode", "injection_index", "delay", "false_alarm"])
+
+
+def severity_means(rows: pd.DataFrame, by: tuple[str, ...] = ("severity",),
+                   columns: tuple[str, ...] = ("auroc", "aupr_out", "fpr_at_95_tpr")) -> pd.DataFrame:
+    """PEDM's summary: each metric averaged over the kinds of each severity (``oodd_runner.py`` l. 164-173).
+
+    ``rows`` has one row per (kind, severity) and whatever else ``by`` names (env, method, detector, ...).
+    """
+    missing = [c for c in ("kind", *by, *columns) if c not in rows.columns]
+    if missing:
+        raise ValueError(f"severity_means: rows lack the column(s) {missing}.")
+    return rows.groupby(list(by), sort=False)[list(columns)].mean().reset_index()
