@@ -133,6 +133,7 @@ def test_command_line():
     assert parse_args(["--quick", "--memory", "--states", "8"])[0].memory is True
     assert parse_args(["--states", "8"])[0].n_states == 8 and parse_args([])[0].memory is True
     assert config.algo_kwargs("CartPole-v1")["n_steps"] == 16  # --set wins over --quick
+    assert parse_args(["--no-limits"])[0].limits is False and parse_args([])[0].limits is True
     with pytest.raises(ValueError, match="keep it in --methods"):
         BenchConfig(methods=("masksembles",))
     with pytest.raises(ValueError, match="unknown override"):
@@ -149,3 +150,15 @@ def test_child_peak_memory_is_its_own_not_the_parents():
     config = BenchConfig(envs=("CartPole-v1",), methods=("baseline",), overrides=dict(TINY))
     mb = measure_in_child(config, "CartPole-v1", "baseline", "train")
     assert 0 < mb["floor_mb"] <= mb["peak_mb"] < ballast.nbytes / 2**20
+
+
+def test_the_default_run_gives_the_speed_claim_its_registered_repetitions():
+    """params.yaml `preregistration.speed.min_repetitions`: every timing the claim reads, in a default `make bench`."""
+    from paper_lib.pipeline.config import read_params
+    from paper_lib.reporting.preregistration import Preregistration
+
+    speed = Preregistration.from_params(read_params()).speed
+    config = BenchConfig()
+    assert config.min_repeats == speed["min_repetitions"] <= config.repeats
+    assert all(config.iterations(env) >= speed["min_repetitions"] for env in config.envs)
+    assert f"uncertainty_b{config.n_states}" in speed["inference"] and speed["training"] == "train_steps_per_s"
