@@ -12,8 +12,11 @@ Measured in one run, per env and method (plain SB3 PPO is the method "baseline")
 - act_uncertainty_b1: predict plus every uncertainty measure for one state, divided by the
   baseline's predict_b1; uncertainty_bN: every measure for N states, divided by its predict_bN.
 - peak_rss_{train,infer}_mb and rss_increase_*: peak memory of a fresh process (see memory.py).
+- every inference timing's limit: the multiply-adds it needs (arithmetic.py) as a plain dense
+  computation timed in the same run (limits.py); bench.csv's limit and time_over_limit.
 Ratios are cost ratios (>1 = costs more than plain SB3 PPO); targets are in report.TARGETS.
-Outputs: <out>/bench.csv (one row per env x method x measurement) and <out>/bench.md.
+Outputs: <out>/bench.csv (one row per env x method x measurement), <out>/bench.md, and
+<out>/bench_timings.csv (every repetition of every timing: the speed claim's input).
 """
 
 from paper_lib.bench.config import BenchConfig, quick_config

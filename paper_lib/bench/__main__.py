@@ -36,13 +36,15 @@ def parse_args(argv: list[str] | None = None) -> tuple[BenchConfig, str]:
                         help="~1 minute: short rollouts, 256 states, 3 repeats, no memory children")
     parser.add_argument("--memory", action=argparse.BooleanOptionalAction, default=None,
                         help="measure peak memory in fresh child processes (default: yes; --quick: no)")
+    parser.add_argument("--limits", action=argparse.BooleanOptionalAction, default=True,
+                        help="time each inference measurement's arithmetic limit (default: yes)")
     parser.add_argument("--paper-widths", action="store_true",
                         help="the paper's widths per method (384 for Masksembles on HalfCheetah) instead of equal ones")
     parser.add_argument("--set", type=_setting, action="append", default=[], metavar="KEY=VALUE",
                         help="override a PPO setting for every env, e.g. --set n_steps=64")
     args = parser.parse_args(argv)
     given = dict(envs=tuple(args.envs), methods=tuple(args.methods), train_steps=args.train_steps,
-                 threads=args.threads, paper_widths=args.paper_widths, overrides=dict(args.set))
+                 threads=args.threads, paper_widths=args.paper_widths, limits=args.limits, overrides=dict(args.set))
     for key, value in (("repeats", args.repeats), ("n_states", args.states), ("memory", args.memory)):
         if value is not None:  # given: it wins over the --quick preset
             given[key] = value

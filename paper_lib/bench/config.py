@@ -11,10 +11,15 @@ from paper_lib.agents.factory import paper_hyperparameters
 from paper_lib.methods.networks import METHODS
 
 DEFAULT_ENVS = ("HalfCheetah-v5", "SeaquestNoFrameskip-v4")
-#: Measured env steps per method when --train-steps is not given: three (MuJoCo) or four
-#: (Atari) whole PPO iterations at the paper's settings (~4 s each for plain PPO on
-#: HalfCheetah, 2 cores); more iterations buy less noise at a linear cost.
-DEFAULT_TRAIN_STEPS = {"mujoco": 12288, "atari": 4096}
+#: Measured env steps per method when --train-steps is not given: five whole PPO iterations
+#: at the paper's settings (~7 s each for plain PPO on HalfCheetah, 2 cores), the speed
+#: claim's registered minimum of paired repetitions (params.yaml `preregistration.speed`);
+#: more iterations buy less noise at a linear cost.
+DEFAULT_TRAIN_STEPS = {"mujoco": 20480, "atari": 5120}
+#: Paired repetitions the speed claim needs of each timing it reads (params.yaml
+#: `preregistration.speed.min_repetitions`): the large-batch timings run past their time
+#: budget until they have this many.
+MIN_REPEATS = 5
 #: --quick shrinks the rollout only. Update cost per env step is n_epochs / batch_size
 #: gradient steps whatever n_steps is, so per-step ratios stay comparable to the full run.
 QUICK_N_STEPS = {"mujoco": 64, "atari": 32}
@@ -32,9 +37,13 @@ class BenchConfig:
     :param train_steps: measured env steps per method (None: a per-env default), rounded up
         to whole PPO iterations (rollout + update); one more iteration is run first as warm-up
     :param n_states: batch for the "score many states" timings (the issue's 4096)
-    :param repeats: timing samples per inference measurement (the median is reported)
-    :param large_budget_s: stop repeating the n_states timings after this many seconds
-        (at least one interleaved round always runs): Atari members need ~10 s per 4096-state call
+    :param repeats: timing samples per inference measurement (the median is reported; every
+        sample goes to bench_timings.csv)
+    :param large_budget_s: stop repeating the n_states timings after this many seconds, once
+        each has min(repeats, min_repeats) samples: Atari members need ~3-5 s per 4096-state call
+    :param min_repeats: samples every timing gets whatever the budget (the speed claim's minimum)
+    :param limits: time each inference measurement's arithmetic limit (`bench.limits`)
+    :param limit_repeats: timing samples per limit
     :param paper_widths: use the paper's per-method widths (384 for Masksembles on
         HalfCheetah) instead of one width for every method
     """
@@ -45,6 +54,9 @@ class BenchConfig:
     n_states: int = 4096
     repeats: int = 5
     large_budget_s: float = 60.0
+    min_repeats: int = MIN_REPEATS
+    limits: bool = True
+    limit_repeats: int = 3
     threads: int = 1
     seed: int = 0
     n_members: int = 4

@@ -18,6 +18,10 @@ from paper_lib.common.io import write_text_atomic
 BASELINE = "baseline"
 ENV_ONLY = "env_only"  # the env-stepping ceiling's "method"
 RATE_UNIT = "steps/s"
+#: Every repetition of every timing, beside bench.csv (the speed claim reads it).
+TIMINGS_FILE = "bench_timings.csv"
+#: A limit's samples in bench_timings.csv: this prefix before the measurement it bounds.
+LIMIT_PREFIX = "limit:"
 #: The issue's targets, as cost ratios against plain SB3 PPO with the same network sizes.
 TARGETS: dict[tuple[str, str], float] = {
     **{("train_steps_per_s", m): 1.15 for m in ("masksembles", "mc_dropout", "mc_dropconnect")},
@@ -46,6 +50,25 @@ class Row:
     torch_threads: int = 1
     machine: str = ""
     load_avg_1m: float = math.nan
+    macs_per_state: float = math.nan  # multiply-adds one state needs (`bench.arithmetic`), inference rows
+    limit: float = math.nan  # the measured limit: a plain dense computation of that size, same unit (`bench.limits`)
+    time_over_limit: float = math.nan  # value / limit: how far from what its arithmetic allows
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One repetition of one timing (bench_timings.csv): what an interval over repetitions needs.
+
+    Repetition i of every method's timing was taken in the same interleaved round (the i-th PPO
+    iteration for training), so methods pair by repetition.
+    """
+
+    env_id: str
+    method: str
+    measurement: str
+    repetition: int
+    value: float
+    unit: str
 
 
 def reference_measurement(measurement: str) -> str:
@@ -76,13 +99,45 @@ def with_ratios(rows: list[Row]) -> list[Row]:
     return out
 
 
-def to_csv(rows: list[Row]) -> str:
+def to_csv(rows: list[Row] | list[Sample], kind: type = Row) -> str:
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=[f.name for f in fields(Row)], lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=[f.name for f in fields(kind)], lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow(asdict(row))
     return buffer.getvalue()
+
+
+def with_limits(rows: list[Row], limits: dict[tuple[str, str, str], tuple[float, float]]) -> list[Row]:
+    """Fill macs_per_state, limit and time_over_limit from {(env, method, measurement): (macs, limit)}."""
+    out = []
+    for row in rows:
+        macs, limit = limits.get((row.env_id, row.method, row.measurement), (math.nan, math.nan))
+        over = row.value / limit if limit > 0 else math.nan
+        out.append(replace(row, macs_per_state=macs, limit=limit, time_over_limit=over))
+    return out
+
+
+def limits_markdown(env_rows: list[Row], methods: list[str]) -> list[str]:
+    """One env's inference timings against their limits: time / limit (ratio), and the arithmetic."""
+    limited = [r for r in env_rows if not math.isnan(r.limit)]
+    if not limited:
+        return []
+    base_macs = {r.measurement: r.macs_per_state for r in limited if r.method == BASELINE}
+    lines = ["Against the arithmetic limit: time / limit in ms (time over limit), and the multiply-adds per state "
+             "(x the plain network's for the same measurement). The limit is a plain dense computation of the "
+             "method's multiply-adds (and MC mask work), batched at best, timed in this run (`paper_lib/bench/"
+             "arithmetic.py`, `limits.py`).", "",
+             "| measurement | " + " | ".join(methods) + " |", "|---|" + "---|" * len(methods)]
+    for name in dict.fromkeys(r.measurement for r in limited):
+        cells = {}
+        for r in (r for r in limited if r.measurement == name):
+            base = base_macs.get(name, math.nan)
+            times = f" ({r.macs_per_state / base:.2f}x)" if base > 0 else ""
+            cells[r.method] = (f"{_num(r.value)} / {_num(r.limit)} ({r.time_over_limit:.2f}x); "
+                               f"{r.macs_per_state / 1e6:.3g}M MACs{times}")
+        lines.append(f"| {name} | " + " | ".join(cells.get(m, "") for m in methods) + " |")
+    return lines + [""]
 
 
 def _num(x: float) -> str:
@@ -117,6 +172,7 @@ def to_markdown(rows: list[Row], header: str) -> str:
             unit = next(r.unit for r in env_rows if r.measurement == name)
             lines.append(f"| {name} | {unit} | " + " | ".join(cells.get(m, "") for m in methods) + " |")
         lines.append("")
+        lines += limits_markdown(env_rows, methods)
     targeted = [r for r in rows if r.meets_target]
     if targeted:
         lines += ["## Targets", "", "| env | method | measurement | ratio | target | meets |", "|---|---|---|---|---|---|"]
@@ -126,10 +182,14 @@ def to_markdown(rows: list[Row], header: str) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(rows: list[Row], out_dir: str | Path, header: str) -> tuple[Path, Path, str]:
-    """Write bench.csv and bench.md atomically; return both paths and the Markdown text."""
+def write_outputs(rows: list[Row], out_dir: str | Path, header: str, samples: list[Sample] | None = None
+                  ) -> tuple[Path, Path, str]:
+    """Write bench.csv, bench.md and (given samples) bench_timings.csv atomically; return the first two paths
+    and the Markdown text."""
     out = Path(out_dir)
     markdown = to_markdown(rows, header)
+    if samples is not None:
+        write_text_atomic(out / TIMINGS_FILE, to_csv(samples, Sample))
     csv_path = write_text_atomic(out / "bench.csv", to_csv(rows))
     md_path = write_text_atomic(out / "bench.md", markdown)
     return csv_path, md_path, markdown

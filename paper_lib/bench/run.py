@@ -12,13 +12,17 @@ from pathlib import Path
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3 import PPO
 
 from paper_lib.bench import memory
+from paper_lib.bench.arithmetic import measurement_count
 from paper_lib.bench.config import BenchConfig
+from paper_lib.bench.limits import dense_limit
 from paper_lib.bench.models import build_model, has_measures, make_bench_env
-from paper_lib.bench.report import ENV_ONLY, RATE_UNIT, Row, with_ratios, write_outputs
-from paper_lib.bench.timing import env_ceiling, interleaved_medians, train_throughput
+from paper_lib.bench.report import (ENV_ONLY, LIMIT_PREFIX, RATE_UNIT, Row, Sample, with_limits, with_ratios,
+                                    write_outputs)
+from paper_lib.bench.timing import env_ceiling, interleaved_samples, train_throughput
 from paper_lib.measures.estimates import act_with_uncertainty, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
@@ -55,16 +59,34 @@ def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, di
     return small, large
 
 
-def bench_env(config: BenchConfig, env_id: str) -> list[Row]:
-    """Every measurement of one env, as Rows without ratios."""
-    rows: list[Row] = []
+def _limit_fns(models: dict[str, PPO], fns: dict, n_states: int, discrete: bool
+               ) -> tuple[dict, dict[tuple[str, str], tuple[float, float]]]:
+    """Per timed (method, measurement): its limit's function, and (multiply-adds per state, scale)."""
+    limit_fns, counts = {}, {}
+    for method, name in fns:
+        count = measurement_count(models[method].policy, name, discrete)
+        if count is None:
+            continue
+        limit = dense_limit(count, 1 if name.endswith("_b1") else n_states)
+        limit_fns[method, name] = limit.run
+        counts[method, name] = (float(count.macs), limit.scale)
+    return limit_fns, counts
 
-    def add(method: str, measurement: str, value: float, unit: str, samples: int) -> None:
+
+def bench_env(config: BenchConfig, env_id: str) -> tuple[list[Row], list[Sample]]:
+    """Every measurement of one env, as Rows without ratios, and every timing repetition."""
+    rows: list[Row] = []
+    samples: list[Sample] = []
+
+    def add(method: str, measurement: str, value: float, unit: str, n: int) -> None:
         if method == ENV_ONLY:
             settings = "random actions, " + config.settings(env_id, "baseline")
         else:
             settings = config.settings(env_id, method)
-        rows.append(Row(env_id, method, measurement, value, unit, samples, settings))
+        rows.append(Row(env_id, method, measurement, value, unit, n, settings))
+
+    def keep(method: str, measurement: str, values: list[float], unit: str) -> None:
+        samples.extend(Sample(env_id, method, measurement, i, v, unit) for i, v in enumerate(values))
 
     iterations, rollout = config.iterations(env_id), config.rollout_steps(env_id)
     _log(f"{env_id}: env-stepping ceiling, {iterations * rollout} steps")
@@ -79,12 +101,30 @@ def bench_env(config: BenchConfig, env_id: str) -> list[Row]:
         add(method, "train_steps_per_s", timing.steps_per_s, RATE_UNIT, len(timing.rollout_s))
         add(method, "rollout_s_per_iter", float(np.median(timing.rollout_s)), "s", len(timing.rollout_s))
         add(method, "update_s_per_iter", float(np.median(timing.update_s)), "s", len(timing.update_s))
+        keep(method, "train_steps_per_s", [timing.steps_per_iteration / (r + u)
+                                           for r, u in zip(timing.rollout_s, timing.update_s)], RATE_UNIT)
+        keep(method, "rollout_s_per_iter", timing.rollout_s, "s")
+        keep(method, "update_s_per_iter", timing.update_s, "s")
 
     small, large = _inference_fns(models, _tile(states, config.n_states))
     _log(f"{env_id}: inference, batch 1 and {config.n_states} states, up to {config.repeats} repeats")
     for fns, budget in ((small, float("inf")), (large, config.large_budget_s)):
-        for (method, name), (seconds, samples) in interleaved_medians(fns, config.repeats, budget).items():
-            add(method, name, seconds * 1e3, "ms", samples)
+        timed = interleaved_samples(fns, config.repeats, budget, min_samples=config.min_repeats)
+        for (method, name), seconds in timed.items():
+            add(method, name, float(np.median(seconds)) * 1e3, "ms", len(seconds))
+            keep(method, name, [s * 1e3 for s in seconds], "ms")
+
+    limits: dict[tuple[str, str, str], tuple[float, float]] = {}
+    if config.limits:
+        discrete = isinstance(next(iter(models.values())).action_space, spaces.Discrete)
+        _log(f"{env_id}: the arithmetic limits, up to {config.limit_repeats} repeats")
+        for fns, budget in ((small, float("inf")), (large, config.large_budget_s)):
+            limit_fns, counts = _limit_fns(models, fns, config.n_states, discrete)
+            for (method, name), seconds in interleaved_samples(limit_fns, config.limit_repeats, budget).items():
+                macs, scale = counts[method, name]
+                values = [s * scale * 1e3 for s in seconds]
+                limits[env_id, method, name] = (macs, float(np.median(values)))
+                keep(method, LIMIT_PREFIX + name, values, "ms")
     for model in models.values():
         model.env.close()
 
@@ -93,7 +133,7 @@ def bench_env(config: BenchConfig, env_id: str) -> list[Row]:
         for (method, phase), mb in memory.measure_all(config, env_id).items():
             add(method, f"peak_rss_{phase}_mb", mb["peak_mb"], "MB", 1)
             add(method, f"rss_increase_{phase}_mb", mb["peak_mb"] - mb["floor_mb"], "MB", 1)
-    return _ordered(rows, config)
+    return with_limits(_ordered(rows, config), limits), samples
 
 
 def _ordered(rows: list[Row], config: BenchConfig) -> list[Row]:
@@ -103,17 +143,21 @@ def _ordered(rows: list[Row], config: BenchConfig) -> list[Row]:
 
 
 def run_benchmark(config: BenchConfig, out_dir: str | Path = "results/bench") -> tuple[list[Row], str]:
-    """Measure every env in `config`, write bench.csv and bench.md to `out_dir`; return rows and Markdown."""
+    """Measure every env in `config`, write bench.csv, bench.md and bench_timings.csv (every repetition) to
+    `out_dir`; return rows and Markdown."""
     th.set_num_threads(config.threads)
     load_start = os.getloadavg()[0]
     started = time.perf_counter()
     rows: list[Row] = []
+    samples: list[Sample] = []
     for env_id in config.envs:
-        rows += bench_env(config, env_id)
+        env_rows, env_samples = bench_env(config, env_id)
+        rows += env_rows
+        samples += env_samples
     context = dict(torch_threads=th.get_num_threads(), machine=machine_line(), load_avg_1m=round(load_start, 2))
     rows = with_ratios([replace(r, **context) for r in rows])
     header = (f"Machine: {context['machine']}. Torch threads: {context['torch_threads']}. "
               f"Load average (1 min) before the run {load_start:.2f} (above ~0: other processes shared the CPUs, "
               f"absolute numbers are disturbed, ratios less so). Took {time.perf_counter() - started:.0f} s.")
-    _, _, markdown = write_outputs(rows, out_dir, header)
+    _, _, markdown = write_outputs(rows, out_dir, header, samples)
     return rows, markdown

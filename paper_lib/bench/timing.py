@@ -117,15 +117,18 @@ def _calibrate(fn: Callable[[], object], min_sample_s: float) -> tuple[int, list
     return max(1, math.ceil(min_sample_s / once)), []
 
 
-def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int, budget_s: float = math.inf,
-                        min_sample_s: float = 0.02) -> dict[str, tuple[float, int]]:
-    """Median seconds per call of each function, and the number of samples it is taken from.
+def interleaved_samples(fns: dict[str, Callable[[], object]], repeats: int, budget_s: float = math.inf,
+                        min_sample_s: float = 0.02, min_samples: int = 1) -> dict[str, list[float]]:
+    """Every timing sample (seconds per call) of each function, in the order taken.
 
     Each round times every function still short of `repeats` samples once, in a rotating
-    order; rounds stop once `budget_s` seconds (calibration included) have passed, but every
-    function always gets at least one sample.
+    order; rounds stop once `budget_s` seconds (calibration included) have passed and every
+    function has `min_samples` samples (at least one: never none). Sample i of two functions
+    is taken in the same round (a long first call counts as its function's first sample), so
+    samples pair by position: the speed claim compares methods on such pairs.
     """
     names = list(fns)
+    floor = max(1, min(min_samples, repeats))
     started = time.perf_counter()
     inner, samples = {}, {}
     for name in names:
@@ -133,7 +136,7 @@ def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int, budg
     r = 0
     while True:
         due = [n for n in _rotated(names, r) if len(samples[n]) < repeats]
-        over_budget = time.perf_counter() - started > budget_s and all(samples[n] for n in names)
+        over_budget = time.perf_counter() - started > budget_s and all(len(samples[n]) >= floor for n in names)
         if not due or over_budget:
             break
         for name in due:
@@ -142,4 +145,12 @@ def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int, budg
                 fns[name]()
             samples[name].append((time.perf_counter() - t0) / inner[name])
         r += 1
+    return samples
+
+
+def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int, budget_s: float = math.inf,
+                        min_sample_s: float = 0.02, min_samples: int = 1) -> dict[str, tuple[float, int]]:
+    """Median seconds per call of each function, and the number of samples it is taken from
+    (`interleaved_samples`)."""
+    samples = interleaved_samples(fns, repeats, budget_s, min_sample_s, min_samples)
     return {name: (statistics.median(s), len(s)) for name, s in samples.items()}

@@ -28,6 +28,8 @@ History, told straight (each change is in git; the numbers each rule judged exis
   scores: the values above moved into params.yaml with the planned seeds and the power analysis; intervals for
   the Jensen-Shannon and spawn claims (point readings before); "not testable" for too few OOD conditions;
   the reward evidence names a significant loss inside the margin; Atari and MuJoCo apart in the JS claim.
+- 2026-12-05 (issue 70): the paper's speed claim (section 4), registered in params.yaml `preregistration.speed`
+  before any benchmark run recorded its repetitions (`speed_claim`); it reads "not testable" until one is committed.
 """
 
 from __future__ import annotations
@@ -60,11 +62,17 @@ CLAIMS = {
     "auroc_order": "Masksembles and Ensembles detect OOD better than MC Dropout and MC DropConnect (Table 2)",
     "levitation": "Ant: value uncertainty flags detachment from the floor at spawn (section 6)",
     "js_like_std": "The Jensen-Shannon measure ranks the methods like policy std (appendix D)",
+    "speed": "Masksembles infers faster than MC Dropout and trains comparably (section 4)",
     "members_vs_detectors": "(ours) The agent's own uncertainty beats the best member-free detector on the same states",
 }
 CLAIM_KEYS = {text: key for key, text in CLAIMS.items()}
 COLUMNS = ["claim", "env", "verdict", "evidence"]
 SPREAD_MEASURES = ("value_std", "policy_std")
+#: The speed claim's registered timings, margin and repetitions (params.yaml `preregistration.speed`).
+SPEED_INFERENCE = ("act_uncertainty_b1", "uncertainty_b4096")
+SPEED_TRAINING = "train_steps_per_s"
+SPEED_MARGIN = 0.10
+SPEED_MIN_REPETITIONS = 5
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,10 @@ class ClaimDesign:
     min_ood_conditions: int = MIN_OOD_CONDITIONS
     planned_seeds: dict[str, int] = field(default_factory=dict)  # per env family (MuJoCo, Atari): the plan
     seeds_needed: dict[tuple[str, str], float] = field(default_factory=dict)  # (claim key, env): count, inf: over
+    speed_inference: tuple[str, ...] = SPEED_INFERENCE
+    speed_training: str = SPEED_TRAINING
+    speed_margin: float = SPEED_MARGIN
+    speed_min_repetitions: int = SPEED_MIN_REPETITIONS
 
     @classmethod
     def from_preregistration(cls, prereg, power: pd.DataFrame) -> ClaimDesign:
@@ -89,7 +101,9 @@ class ClaimDesign:
         return cls(level=prereg.level, reward_margin=prereg.reward_margin, js_threshold=prereg.js_threshold,
                    min_ood_conditions=prereg.min_ood_conditions,
                    planned_seeds={family: len(seeds) for family, seeds in prereg.planned_seeds.items()},
-                   seeds_needed=registered_counts(power))
+                   seeds_needed=registered_counts(power), speed_inference=tuple(prereg.speed["inference"]),
+                   speed_training=prereg.speed["training"], speed_margin=prereg.speed["margin"],
+                   speed_min_repetitions=prereg.speed["min_repetitions"])
 
     def planned(self, env: str) -> int | None:
         """The seeds `env` (or an env family's name) waits for; None without a plan."""
@@ -391,6 +405,17 @@ def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
     return rows
 
 
+def speed_rows(timings: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> list[dict[str, str]]:
+    """The paper's speed claim per benchmark env (`speed_claim`: Masksembles / MC Dropout over the benchmark's
+    repetitions); no seeds, so no seed plan: its verdicts are not staged."""
+    from paper_lib.reporting.speed_claim import speed_claim
+
+    return [{"claim": CLAIMS["speed"], "env": env, "verdict": verdict, "evidence": evidence}
+            for env, verdict, evidence in speed_claim(timings, design.speed_inference, design.speed_training,
+                                                      design.speed_margin, design.speed_min_repetitions,
+                                                      design.level)]
+
+
 def base_verdict(verdict: str) -> str:
     """A staged verdict's reading without its seed plan: holds, does not hold, mixed, inconclusive, undecidable,
     not testable (for colouring and counting)."""
@@ -402,9 +427,11 @@ def base_verdict(verdict: str) -> str:
 
 
 def paper_claims(vs_baseline: pd.DataFrame, pairwise: pd.DataFrame, metrics: pd.DataFrame, versus: pd.DataFrame,
-                 spawn: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> pd.DataFrame:
-    """Every claim's rows, in the order of ``CLAIMS``."""
+                 spawn: pd.DataFrame | None, design: ClaimDesign = ClaimDesign(),
+                 timings: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Every claim's rows, in the order of ``CLAIMS``; `timings`: the benchmark's repetitions
+    (`speed_claim.read_timings`), None while none is committed."""
     rows = (reward_claim(vs_baseline, design) + auroc_claim(pairwise, design, metrics)
-            + levitation_claim(spawn, design) + js_claim(metrics, design)
+            + levitation_claim(spawn, design) + js_claim(metrics, design) + speed_rows(timings, design)
             + detector_claim(versus, design, metrics))
     return pd.DataFrame(rows, columns=COLUMNS)

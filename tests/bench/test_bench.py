@@ -15,7 +15,7 @@ from paper_lib import make_agent
 from paper_lib.bench import BenchConfig, Row, build_model, run_benchmark
 from paper_lib.bench.__main__ import parse_args
 from paper_lib.bench.report import reference_measurement, with_ratios
-from paper_lib.bench.timing import interleaved_medians
+from paper_lib.bench.timing import interleaved_medians, interleaved_samples
 
 TINY_RUN = dict(envs=("CartPole-v1",), methods=("baseline", "masksembles"), train_steps=256, n_states=32,
                 repeats=2, overrides=dict(TINY))
@@ -43,6 +43,26 @@ def test_tiny_benchmark_writes_expected_rows(tmp_path):
     train = next(r for r in table if r["method"] == "masksembles" and r["measurement"] == "train_steps_per_s")
     assert float(train["target"]) == 1.15 and train["meets_target"] in {"yes", "no"}
     assert "## CartPole-v1" in markdown and "| train_steps_per_s | steps/s |" in markdown and "## Targets" in markdown
+    # the limit column: every inference timing against its arithmetic, nothing else
+    limited = {(r["method"], r["measurement"]) for r in table if r["limit"] not in ("", "nan")}
+    assert limited == {(m, name) for m in TINY_RUN["methods"]
+                       for name in ("predict_b1", "predict_b32", "act_uncertainty_b1", "uncertainty_b32")}
+    for r in table:
+        if (r["method"], r["measurement"]) in limited:
+            assert float(r["macs_per_state"]) > 0 and float(r["time_over_limit"]) == pytest.approx(
+                float(r["value"]) / float(r["limit"]))
+    assert "Against the arithmetic limit" in markdown
+    # every repetition of every timing, limits included, beside bench.csv
+    with open(tmp_path / "bench_timings.csv", newline="") as f:
+        timings = list(csv.DictReader(f))
+    counts = {}
+    for t in timings:
+        counts[t["method"], t["measurement"]] = counts.get((t["method"], t["measurement"]), 0) + 1
+    for r in table:
+        if r["unit"] in ("ms", "steps/s") and r["method"] != "env_only":
+            assert counts[r["method"], r["measurement"]] == int(r["samples"]), r
+    assert counts["masksembles", "limit:uncertainty_b32"] >= 1
+    assert counts["masksembles", "train_steps_per_s"] == 2  # one per measured PPO iteration
 
 
 def _row(method: str, measurement: str, value: float, unit: str) -> Row:
@@ -82,8 +102,10 @@ def test_interleaved_medians_counts_samples():
 
     fns = {name: counter(name) for name in calls}
     assert {name: n for name, (_, n) in interleaved_medians(fns, repeats=3).items()} == {"a": 3, "b": 3}
-    # A spent budget still leaves one sample per function, never none.
+    # A spent budget still leaves one sample per function, never none, and min_samples where asked.
     assert {name: n for name, (_, n) in interleaved_medians(fns, repeats=3, budget_s=0.0).items()} == {"a": 1, "b": 1}
+    assert {name: len(s) for name, s in interleaved_samples(fns, 4, budget_s=0.0, min_samples=3).items()} \
+        == {"a": 3, "b": 3}
 
 
 def test_models_have_equal_sizes_unless_paper_widths():
@@ -111,6 +133,7 @@ def test_command_line():
     assert parse_args(["--quick", "--memory", "--states", "8"])[0].memory is True
     assert parse_args(["--states", "8"])[0].n_states == 8 and parse_args([])[0].memory is True
     assert config.algo_kwargs("CartPole-v1")["n_steps"] == 16  # --set wins over --quick
+    assert parse_args(["--no-limits"])[0].limits is False and parse_args([])[0].limits is True
     with pytest.raises(ValueError, match="keep it in --methods"):
         BenchConfig(methods=("masksembles",))
     with pytest.raises(ValueError, match="unknown override"):
@@ -127,3 +150,15 @@ def test_child_peak_memory_is_its_own_not_the_parents():
     config = BenchConfig(envs=("CartPole-v1",), methods=("baseline",), overrides=dict(TINY))
     mb = measure_in_child(config, "CartPole-v1", "baseline", "train")
     assert 0 < mb["floor_mb"] <= mb["peak_mb"] < ballast.nbytes / 2**20
+
+
+def test_the_default_run_gives_the_speed_claim_its_registered_repetitions():
+    """params.yaml `preregistration.speed.min_repetitions`: every timing the claim reads, in a default `make bench`."""
+    from paper_lib.pipeline.config import read_params
+    from paper_lib.reporting.preregistration import Preregistration
+
+    speed = Preregistration.from_params(read_params()).speed
+    config = BenchConfig()
+    assert config.min_repeats == speed["min_repetitions"] <= config.repeats
+    assert all(config.iterations(env) >= speed["min_repetitions"] for env in config.envs)
+    assert f"uncertainty_b{config.n_states}" in speed["inference"] and speed["training"] == "train_steps_per_s"

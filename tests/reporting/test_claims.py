@@ -14,6 +14,7 @@ import numpy as np
 from paper_lib.reporting.claims import (AUROC_ORDER_PAIRS, CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, ClaimDesign,
                                         auroc_claim, base_verdict, detector_claim, js_claim, levitation_claim,
                                         paper_claims, reward_claim)
+from paper_lib.reporting.speed_claim import NO_BENCHMARK
 
 
 def _vs_baseline(ci_low: float, ci_high: float, baseline: float = 100.0, n_seeds: int = 3) -> pd.DataFrame:
@@ -75,6 +76,7 @@ def test_each_rule_on_a_case_known_by_hand():
                         "auroc_order": MIXED,  # value std: all four pairs above 0; policy std: below
                         "levitation": HOLDS,  # 2 of 3 methods on both counts
                         "js_like_std": HOLDS,  # the same order of the eight cells
+                        "speed": NO_BENCHMARK,  # no benchmark with repetitions given (tests/reporting/test_speed_claim.py)
                         "members_vs_detectors": HOLDS}  # one cell above 0
 
 
