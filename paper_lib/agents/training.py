@@ -38,7 +38,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from paper_lib.agents.envs import is_atari
+from paper_lib.agents.envs import is_atari, save_normalizer
 from paper_lib.agents.factory import HP_OPTIONAL, config_value, make_agent
 from paper_lib.common.io import DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic
 from paper_lib.common.provenance import machine, package_versions
@@ -124,7 +124,7 @@ def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, f
         model.save(tmp / "model.zip")  # includes the optimizer state
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:
-            normalizer.save(str(tmp / "vecnormalize.pkl"))
+            save_normalizer(normalizer, tmp / "vecnormalize.pkl", model.paper_lib_config["env_id"])
         state = {"num_timesteps": model.num_timesteps, "n_updates": getattr(model, "_n_updates", 0),
                  "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds,
                  "segments": segments or [],
@@ -346,7 +346,7 @@ def _train_locked(env_id: str, method: str, seed: int, out_dir: Path, algo: str,
         model.save(tmp / "model.zip")
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:
-            normalizer.save(str(tmp / "vecnormalize.pkl"))
+            save_normalizer(normalizer, tmp / "vecnormalize.pkl", model.paper_lib_config["env_id"])
         pd.DataFrame(curve.rows).to_csv(tmp / "training_curve.csv", index=False)
         write_json_atomic(tmp / "config.json", config)
     return out_dir

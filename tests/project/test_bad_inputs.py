@@ -18,7 +18,7 @@ import subprocess
 import sys
 import tarfile
 from collections.abc import Callable
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 import yaml
 
-from paper_lib import make_agent
+from paper_lib import make_agent, uncertainty
 from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.agents.training import train_run
 from paper_lib.ood.atari import AtariOODConfig
@@ -67,7 +67,7 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     """The workspace: a params.yaml copy, checkpoints with wrong identities, an Atari-HEAD copy."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from paper_lib.agents.envs import make_env
+    from paper_lib.agents.envs import make_env, save_normalizer
 
     root = tmp_path_factory.mktemp("bad_inputs")
     shutil.copy(REPO / "params.yaml", root / "params.yaml")
@@ -89,6 +89,9 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     VecNormalize(make_env("CartPole-v1", 1, 0)).save(str(ck / "stray_norm" / "vecnormalize.pkl"))
     _save_checkpoint(ck / "garbage_norm", "ppo", "ensemble", {"normalize_obs": True})
     (ck / "garbage_norm" / "vecnormalize.pkl").write_bytes(b"\x80\x04garbage")
+    # a normalizer that records another env (of CartPole's shape) where config.json says CartPole-v1
+    _save_checkpoint(ck / "norm_other_env", "ppo", "ensemble", {"normalize_obs": True})
+    save_normalizer(VecNormalize(make_env("CartPole-v1", 1, 0)), ck / "norm_other_env" / "vecnormalize.pkl", "CartPole-v0")
     _save_checkpoint(ck / "bad_json", "ppo", "ensemble")
     (ck / "bad_json" / "config.json").write_text('{"env_id": "CartPole-v1",')
     # Atari-HEAD copies: a label file with a corrupt archive, and with a truncated one
@@ -114,6 +117,7 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(agents / "halfcheetah.zip")
     VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(agents / "swimmer_vecnormalize.pkl"))
     (agents / "not_vecnormalize.pkl").write_bytes(pickle.dumps({"obs_rms": None}))
+    save_normalizer(VecNormalize(make_env("Walker2d-v5", 1, 0)), agents / "walker_saved_vecnormalize.pkl", "Walker2d-v5")
     # evaluation files cut off: mid-row, after the header, at a row boundary, to nothing (seeds 0-3 of one run)
     whole = _evaluation_text()
     lines = whole.splitlines(keepends=True)
@@ -240,6 +244,56 @@ def head(name: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
                               np.random.default_rng(0), frame_skip=1)
 
 
+@cache
+def _cartpole(method: str = "ensemble", seed: int = 0) -> Any:
+    """A CartPole agent, built once per module (the cases only read it)."""
+    return make_agent("ppo", method, "CartPole-v1", seed, n_envs=4, overrides=dict(TINY))
+
+
+@cache
+def _seaquest() -> Any:
+    """A Seaquest agent: its policy takes uint8 frames in [0, 255]."""
+    return make_agent("ppo", "baseline", "SeaquestNoFrameskip-v4", 0, n_envs=2, overrides=dict(TINY))
+
+
+def given_env(env_id: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """make_agent for CartPole-v1 handed an env of `env_id`."""
+    from paper_lib.agents.envs import make_env
+
+    return lambda ws: partial(make_agent, "ppo", "ensemble", "CartPole-v1", 0, n_envs=4, overrides=dict(TINY),
+                              env=make_env(env_id, 4, 0))
+
+
+def calibrated_on(scores: np.ndarray) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """Guard.from_scores on these calibration scores."""
+    from paper_lib.guard import Guard
+    from paper_lib.guard.scores import CallableScore
+
+    return lambda ws: partial(Guard.from_scores, _cartpole(), CallableScore(lambda s: s[:, 0], "x"), scores, 0.1)
+
+
+def guard_of_another_seed(ws: SimpleNamespace) -> Callable[[], Any]:
+    """GuardedPolicy of the seed-1 agent with a guard calibrated on the seed-0 agent."""
+    from paper_lib.guard import Guard, GuardedPolicy
+    from paper_lib.guard.scores import CallableScore
+
+    guard = Guard.from_scores(_cartpole(), CallableScore(lambda s: s[:, 0], "x"), np.arange(20.0), 0.1)
+    return partial(GuardedPolicy, _cartpole(seed=1), guard, fallback=None)
+
+
+def scored(obs: Callable[[], np.ndarray], atari: bool = False, **kwargs: Any) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """uncertainty on `obs()` by the Seaquest (atari) or the CartPole agent's policy."""
+    return lambda ws: partial(uncertainty, (_seaquest() if atari else _cartpole()).policy, obs(), **kwargs)
+
+
+def frames() -> np.ndarray:
+    return np.random.default_rng(0).integers(0, 256, (2, 84, 84, 4), dtype=np.uint8)
+
+
+def cartpole_states() -> np.ndarray:
+    return np.zeros((3, 4), dtype=np.float32)
+
+
 # (id, prepare(ws) -> call, regex the one error message must match)
 API_CASES: list[tuple[str, Callable, str]] = [
     # params.yaml
@@ -362,6 +416,36 @@ API_CASES: list[tuple[str, Callable, str]] = [
      r"guard\.budgets\.tiny\.fit_episodes must be an integer >= 1, got -1"),
     ("guard-budget-not-mapping", guard(budget_entry("paper", "", [10, 100])),
      r"guard\.budgets\.paper must be a mapping \{fit_episodes: \.\.\., .*\}, got \[10, 100\]"),
+    # issue 71: doors that were open
+    ("make-agent-env-of-another-id", given_env("Acrobot-v1"),
+     r"make_agent: the given env runs Acrobot-v1 but env_id is 'CartPole-v1'; pass an env of CartPole-v1 "
+     r"\(make_env\('CartPole-v1', n_envs, seed\)\) or env_id='Acrobot-v1'"),
+    ("guard-of-another-model", guard_of_another_seed,
+     r"the guard was calibrated for a PPO ensemble CartPole-v1, seed 0 \(weights [0-9a-f]{12}\), but the model given "
+     r"is a PPO ensemble CartPole-v1, seed 1 \(weights [0-9a-f]{12}\); .*Pass the model the guard was calibrated with, "
+     r"or calibrate a new guard for this model"),
+    ("guard-calibrated-on-inf", calibrated_on(np.r_[np.arange(19.0), np.inf]),
+     r"calibration scores hold NaN or inf \(1 of 20; an inf threshold never alarms, -inf always does\); drop those "
+     r"calibration states or fix the score function"),
+    ("guard-calibrated-on-minus-inf", calibrated_on(np.r_[np.arange(19.0), -np.inf]), r"hold NaN or inf \(1 of 20"),
+    ("checkpoint-normalizer-of-another-env", checkpoint("norm_other_env"),
+     r"norm_other_env/vecnormalize\.pkl was saved for CartPole-v0 but .*norm_other_env/config\.json says CartPole-v1: "
+     r"another run's normalizer was put here; retrain it"),
+    ("vecnormalize-saved-for-other-env", own_agent(lambda ws: ws.root / "agents" / "walker_saved_vecnormalize.pkl"),
+     r"walker_saved_vecnormalize\.pkl was saved for Walker2d-v5, but the agent is evaluated on HalfCheetah-v5: give "
+     r"the VecNormalize the agent was trained with on HalfCheetah-v5"),
+    ("uncertainty-seed-fraction", scored(cartpole_states, seed=1.5),
+     r"seed must be None or an integer >= 0 \(the MC masks' seed\), got 1\.5; pass e\.g\. seed=0"),
+    ("uncertainty-seed-text", scored(cartpole_states, seed="7"), r"seed must be None or an integer >= 0 .*got '7'"),
+    ("uncertainty-frames-scaled", scored(lambda: frames().astype(np.float32) / 255, atari=True),
+     r"observations are float32 but this policy's observation space holds uint8 frames in \[0, 255\]; pass the raw "
+     r"frames \(the policy scales them itself\)"),
+    ("uncertainty-frames-negative", scored(lambda: frames().astype(np.int64) - 128, atari=True),
+     r"observations hold values in \[-128, 127\] but this policy's observation space holds uint8 frames in "
+     r"\[0, 255\]; pass the raw frames as the env returns them"),
+    ("uncertainty-not-a-policy", lambda ws: partial(uncertainty, "model.zip", cartpole_states()),
+     r"uncertainty takes an SB3 actor-critic model or its policy \(model\.policy\), got str; pass e\.g\. "
+     r"make_agent\(\.\.\.\) or PPO\.load\(path\)"),
 ]
 
 
@@ -439,6 +523,11 @@ CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
     ("evaluate-agent-other-vecnormalize", "paper_lib.pipeline.evaluate_agent",
      ["agent.zip", "HalfCheetah-v5", "--vecnormalize", "swimmer.pkl"], "good",
      r"swimmer\.pkl normalizes observations of shape \(8,\), but HalfCheetah-v5's have shape \(17,\)"),
+    ("evaluate-agent-saved-vecnormalize-of-another-env", "paper_lib.pipeline.evaluate_agent",
+     ["agent.zip", "HalfCheetah-v5", "--vecnormalize", "walker.pkl"], "good",
+     r"walker\.pkl was saved for Walker2d-v5, but the agent is evaluated on HalfCheetah-v5"),
+    ("evaluate-agent-out-empty", "paper_lib.pipeline.evaluate_agent", ["agent.zip", "HalfCheetah-v5", "--out", ""],
+     "good", r"--out folder is empty \(''\), which would write into the current folder; give a folder path"),
 ]
 
 
@@ -460,10 +549,11 @@ def _cli_workspace(root: Path) -> dict[str, Path]:
         (folders[name] / "params.yaml").write_text(variant)
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from paper_lib.agents.envs import make_env
+    from paper_lib.agents.envs import make_env, save_normalizer
 
     make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(folders["good"] / "agent.zip")
     VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(folders["good"] / "swimmer.pkl"))
+    save_normalizer(VecNormalize(make_env("Walker2d-v5", 1, 0)), folders["good"] / "walker.pkl", "Walker2d-v5")
     return folders
 
 

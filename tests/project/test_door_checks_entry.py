@@ -588,3 +588,93 @@ def test_evaluate_agent_says_how_to_finish_when_the_old_results_cannot_be_put_ba
     monkeypatch.undo()
     assert io.recover_files(out)
     assert {name: (out / name).read_bytes() for name in module.OUTPUT_FILES} == first
+
+
+# ----------------------------------------------------------------------------- 9. the README paste and the site (issue 71)
+
+def _readme_inputs(to: Path) -> str:
+    """The committed README, docs and the results readme_results.py pastes from, in `to`; the active profile."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import readme_results
+
+    profile = readme_results.active_profile()
+    shutil.copy(REPO / "README.md", to / "README.md")
+    shutil.copytree(REPO / "docs", to / "docs")
+    for part in (f"results/{profile}/tables", "results/bench", "results/recipe_probes"):
+        shutil.copytree(REPO / part, to / part)
+    shutil.copy(REPO / f"results/{profile}/runs.md", to / f"results/{profile}/runs.md")
+    return profile
+
+
+@pytest.mark.parametrize("damage,match", [
+    (lambda p: p.write_text(p.read_text()[: len(p.read_text()) // 2]),
+     r"rewards\.md is incomplete \(cut off\?\): its table has a row cut short or no header; run the stage that "
+     r"writes it again \(`make reproduce`, or `git checkout results/\w+/tables/rewards\.md` for the committed copy\): "
+     r"nothing was written"),
+    (lambda p: p.write_text("".join(p.read_text().splitlines(keepends=True)[:5])),  # cut at a row's end
+     r"rewards\.md is incomplete \(cut off\?\): its table has 1 rows but rewards\.csv has 18"),
+    (lambda p: p.with_suffix(".csv").write_text(p.with_suffix(".csv").read_text()[:-30]),
+     r"rewards\.csv is incomplete \(cut off\?\): its last line ends mid-row"),
+    (lambda p: p.unlink(), r"rewards\.md is missing; run the stage that writes it again"),
+])
+def test_readme_results_refuses_a_truncated_or_missing_table_and_writes_nothing(tmp_path, damage, match):
+    profile = _readme_inputs(tmp_path)
+    damage(tmp_path / "results" / profile / "tables" / "rewards.md")
+    before = snapshot(tmp_path)
+    run = subprocess.run([sys.executable, str(REPO / "scripts" / "readme_results.py"), profile], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0 and "Traceback" not in run.stderr, run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and re.search(match, run.stderr), run.stderr
+    assert snapshot(tmp_path) == before
+
+
+def _site_workspace(root: Path) -> tuple[object, str, Path]:
+    """The site's inputs (dvc.yaml and the executed notebooks of the active profile) in `root`."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import build_site
+
+    profile = build_site.active_profile()
+    shutil.copy(REPO / "dvc.yaml", root / "dvc.yaml")
+    folder = root / "results" / profile / "notebooks"
+    shutil.copytree(REPO / "results" / profile / "notebooks", folder)
+    return build_site, profile, folder
+
+
+def test_the_site_refuses_a_missing_notebook_naming_its_stage(tmp_path):
+    build_site, profile, folder = _site_workspace(tmp_path)
+    (folder / "03_ood_detection.ipynb").unlink()
+    before = snapshot(tmp_path)
+    with pytest.raises(ValueError, match=rf"results/{profile}/notebooks/03_ood_detection\.ipynb is missing \(the DVC "
+                                         r"stage ood writes it\): run `dvc repro ood` or restore the committed copy "
+                                         rf"with `git checkout results/{profile}/notebooks/03_ood_detection\.ipynb`; "
+                                         r"the site was not built"):
+        build_site.notebook_pages(profile, tmp_path)
+    assert snapshot(tmp_path) == before
+
+
+def test_the_site_refuses_a_truncated_notebook_naming_it(tmp_path):
+    build_site, profile, folder = _site_workspace(tmp_path)
+    page = folder / "00_quickstart.ipynb"
+    page.write_bytes(page.read_bytes()[: page.stat().st_size // 2])
+    before = snapshot(tmp_path)
+    with pytest.raises(ValueError, match=rf"results/{profile}/notebooks/00_quickstart\.ipynb is not a readable "
+                                         r"notebook \(cut off\?\) .*run `dvc repro quickstart` or restore the committed "
+                                         r"copy .*the site was not built"):
+        build_site.notebook_pages(profile, tmp_path)
+    assert snapshot(tmp_path) == before
+
+
+def test_a_page_that_left_the_sources_leaves_the_built_site(tmp_path):
+    """Sphinx builds only the pages it has: the previous build's copy of a removed page must go with its source."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import build_site
+
+    source, site = tmp_path / "src", tmp_path / "site"
+    (source / "notebooks").mkdir(parents=True)
+    (site / "notebooks").mkdir(parents=True)
+    for folder, name in ((source, "notebooks/99_gone.ipynb"), (site, "notebooks/99_gone.html"),
+                         (site, "notebooks/03_ood_detection.html")):
+        (folder / name).write_text("old")
+    build_site.assemble(source, REPO, site)
+    assert not (source / "notebooks" / "99_gone.ipynb").exists() and not (site / "notebooks" / "99_gone.html").exists()
+    assert (site / "notebooks" / "03_ood_detection.html").read_text() == "old"  # a page still there is Sphinx's to rebuild
