@@ -28,7 +28,8 @@ from paper_lib.pipeline.config import RunConfig, load_run_config
 from paper_lib.pipeline.layout import COMMON_STATES_OF as STATES_OF
 from paper_lib.pipeline.layout import common_runs  # noqa: F401 (this module's readers use it with read_common)
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
-                                             check_dataset_identity, provenance_record, run_identity)
+                                             check_dataset_identity, provenance_record, read_replicate_matrix,
+                                             read_score_csv, replicates_by_metric, run_identity)
 
 FOLDER = "common_scores"
 FILES = ("metrics.csv", "replicates.npy", PROVENANCE_FILE)
@@ -111,15 +112,15 @@ def read_common(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.Da
                                     f"{run[0]}-{run[1]}-{run[2]}` (`make reproduce` makes every stale one)")
         import json
 
+        rescore = f"score it again (`python -m paper_lib.pipeline.common_states {run[0]} {run[1]} {run[2]}`)"
         if json.loads((folder / PROVENANCE_FILE).read_text()) != common_provenance(cfg, *run):
             raise ValueError(f"{folder} was scored from other files than {run[0]} {run[1]} seed {run[2]}'s checkpoint "
-                             f"and the {STATES_OF}'s dataset hold now: score it again (`python -m "
-                             f"paper_lib.pipeline.common_states {run[0]} {run[1]} {run[2]}`)")
-        metrics = pd.read_csv(folder / "metrics.csv")
-        matrix = np.load(folder / "replicates.npy")
+                             f"and the {STATES_OF}'s dataset hold now: {rescore}")
+        metrics = read_score_csv(folder, "metrics.csv", run_identity(*run), rescore)
+        matrix = read_replicate_matrix(folder, len(metrics), rescore)
         frames.append(metrics)
-        for ood_set, measure, row in zip(metrics["ood_set"], metrics["measure"], matrix):
-            replicates[(*run, ood_set, measure)] = row[~np.isnan(row)].astype(float)
+        for (ood_set, measure), row in replicates_by_metric(metrics, matrix).items():
+            replicates[(*run, ood_set, measure)] = row
     return (pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()), replicates
 
 

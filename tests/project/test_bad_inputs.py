@@ -36,7 +36,7 @@ from paper_lib.ood.atari_head import LABEL_HEADER, load_atari_head_states
 from paper_lib.ood.mujoco import PerturbationConfig
 from paper_lib.pipeline.config import load_run_config, use_profile
 from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent
-from paper_lib.pipeline.run_results import read_evaluations
+from paper_lib.pipeline.run_results import read_all_replicates, read_evaluations, read_scores
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -124,11 +124,40 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     damaged = ("reward,length\n100.0,1000\n",  # another file's columns
                "".join(lines[:-1]) + "single,False,,,1000,HalfCheetah-v5,baseline,0\n",  # an episode without its reward
                "".join(lines) + "single,False,,1.0,1000,HalfCheetah-v5,baseline,0,7,8\n")  # a row of too many fields
-    for seed, text in enumerate((whole[:-9], lines[0], "".join(lines[:-1]), "", *damaged)):
+    twice = whole + "".join(lines[1:])  # every episode twice (a file appended to itself)
+    for seed, text in enumerate((whole[:-9], lines[0], "".join(lines[:-1]), "", *damaged, twice)):
         path = root / "evals" / "results" / "paper" / "evaluations" / "HalfCheetah-v5" / "baseline" / f"seed{seed}.csv"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
+    _damaged_scores(root / "scores")
     return SimpleNamespace(root=root, ck=ck, params=root / "params.yaml", text=(root / "params.yaml").read_text())
+
+
+#: A committed run whose scores the score-file cases copy and damage, and another run of its env and seed.
+SCORED, OTHER_SCORED = ("HalfCheetah-v5", "baseline", 0), ("HalfCheetah-v5", "masksembles", 0)
+
+
+def _scores_folder(tree: Path, run: tuple[str, str, int]) -> Path:
+    return tree / "results" / "paper" / "scores" / run[0] / run[1] / f"seed{run[2]}"
+
+
+def _damaged_scores(root: Path) -> None:
+    """One results tree per damage, each holding the committed scores of SCORED (their inputs absent, as in a checkout
+    without datasets: the provenance record is checked for its identity only) with one file damaged."""
+    def cut(name: str, at: Callable[[bytes], int]) -> Callable[[Path], None]:
+        return lambda folder: (folder / name).write_bytes((folder / name).read_bytes()[: at((folder / name).read_bytes())])
+
+    damages = {
+        "metrics_half": cut("metrics.csv", lambda b: len(b) // 2),
+        "metrics_at_a_row": cut("metrics.csv", lambda b: b.rindex(b"\n", 0, len(b) // 2) + 1),
+        "replicates_half": cut("replicates.npy", lambda b: len(b) // 2),
+        "roc_of_another_run": lambda folder: shutil.copy(_scores_folder(REPO, OTHER_SCORED) / "roc.csv", folder),
+        "no_provenance": lambda folder: (folder / "provenance.json").unlink(),
+    }
+    for name, damage in damages.items():
+        folder = _scores_folder(root / name, SCORED)
+        shutil.copytree(_scores_folder(REPO, SCORED), folder)
+        damage(folder)
 
 
 def _evaluation_text() -> str:
@@ -203,8 +232,18 @@ def evaluation(seed: int) -> Callable[[SimpleNamespace], Callable[[], Any]]:
     """read_evaluations (what the rewards notebook calls) on the evaluation file of seed `seed`, cut off."""
     import dataclasses
 
-    return lambda ws: partial(read_evaluations, dataclasses.replace(load_run_config(ws.params), root=ws.root / "evals"),
-                              [("HalfCheetah-v5", "baseline", seed)])
+    return lambda ws: partial(read_evaluations, dataclasses.replace(load_run_config(ws.params), root=ws.root / "evals",
+                                                                    eval_episodes=3), [("HalfCheetah-v5", "baseline", seed)])
+
+
+def scores(damage: str, name: str = "metrics", reader: Callable | None = None) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """read_scores (notebooks 3-5) of SCORED's `name` file in the tree with `damage`; `reader(cfg, runs)` instead."""
+    import dataclasses
+
+    def prepare(ws: SimpleNamespace) -> Callable[[], Any]:
+        cfg = dataclasses.replace(load_run_config(ws.params), root=ws.root / "scores" / damage)
+        return partial(reader, cfg, [SCORED]) if reader else partial(read_scores, cfg, [SCORED], name)
+    return prepare
 
 
 def own_agent(vecnormalize: Callable[[SimpleNamespace], Any]) -> Callable[[SimpleNamespace], Callable[[], Any]]:
@@ -401,6 +440,24 @@ API_CASES: list[tuple[str, Callable, str]] = [
     ("evaluation-other-columns", evaluation(4), r"seed4\.csv is incomplete .*: it lacks the column\(s\) \['inference', "),
     ("evaluation-empty-reward", evaluation(5), r"seed5\.csv is incomplete .*: some episodes have no reward;"),
     ("evaluation-unparsable", evaluation(6), r"seed6\.csv is incomplete .*: it is not a readable CSV \(ParserError: "),
+    ("evaluation-every-episode-twice", evaluation(7), r"seed7\.csv holds 6 episodes per action mode and inference, but "
+     r"the profile plays 3 \(eval_episodes\): episodes were added twice or the file is of another profile; evaluate the "
+     r"run again \(`python -m paper_lib\.pipeline\.run_results evaluate HalfCheetah-v5 baseline 7`\)"),
+    # score files cut off, of another run, or without their record (issue 71)
+    ("scores-metrics-cut-in-half", scores("metrics_half"), r"metrics_half/results/paper/scores/HalfCheetah-v5/baseline/"
+     r"seed0/metrics\.csv is incomplete \(cut off\?\): its last line ends mid-row; score the run again \(`python -m "
+     r"paper_lib\.pipeline\.run_results score HalfCheetah-v5 baseline 0`\)"),
+    ("scores-metrics-cut-at-a-row", scores("metrics_at_a_row"), r"seed0/replicates\.npy holds \d+ rows but the "
+     r"metrics\.csv beside it has \d+ \(one row of replicates per metric\): one of them is cut off .*; score the run again"),
+    ("scores-replicates-cut", scores("replicates_half", reader=read_all_replicates), r"seed0/replicates\.npy is "
+     r"incomplete \(cut off\?\): it is not a readable \.npy .*; score the run again \(`python -m "
+     r"paper_lib\.pipeline\.run_results score HalfCheetah-v5 baseline 0`\)"),
+    ("scores-file-of-another-run", scores("roc_of_another_run", "roc"), r"seed0/roc\.csv belongs to HalfCheetah-v5 "
+     r"masksembles seed 0, not to HalfCheetah-v5 baseline seed 0 whose path it sits at: a file of another run is never "
+     r"read as this one's; score the run again"),
+    ("scores-without-provenance", scores("no_provenance", "over_time"), r"the scores .*no_provenance/results/paper/"
+     r"scores/HalfCheetah-v5/baseline/seed0 have no provenance\.json: .*record it from the current files, which the "
+     r"command checks first \(`python -m paper_lib\.pipeline\.run_results provenance HalfCheetah-v5 baseline 0`\)"),
     # notebook 8's guard budgets (the active profile's and every other's)
     ("guard-budget-negative", guard(budget_entry("paper", "fit_episodes", -3)),
      r"params_\d+\.yaml: guard\.budgets\.paper\.fit_episodes must be an integer >= 1, got -3"),
