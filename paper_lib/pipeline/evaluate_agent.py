@@ -16,6 +16,7 @@ detection error, OOD positive.
 from __future__ import annotations
 
 import argparse
+import os
 import pickle
 import warnings
 from dataclasses import dataclass
@@ -31,7 +32,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from paper_lib.agents.checkpoints import check_loadable_algorithm, zip_algorithm
 from paper_lib.agents.envs import is_atari, make_env, normalizer_env_id, wrapped_env_ids
 from paper_lib.agents.factory import ALGORITHMS, check_device
-from paper_lib.common.io import (MixedFilesError, atomic_files, check_folder_destination, recover_files,
+from paper_lib.common.io import (MixedFilesError, atomic_dir, atomic_files, check_folder_destination, recover_files,
                                  write_text_atomic)
 from paper_lib.ood.atari import ATARI_GAMES
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
@@ -224,11 +225,23 @@ def check_output_folder(out_dir: str | Path) -> Path:
     return out
 
 
+def swapped_whole(out: Path) -> bool:
+    """Whether `out` can be replaced as one folder: new, or holding this command's files only (a previous run's), as a
+    real folder whose parent takes the new one beside it. Then a kill at any instant leaves the old files or the new
+    ones, never a mix; a folder that also holds the user's files gets the group move (`atomic_files`) instead, whose
+    journal puts the old files back at the next call, since swapping the folder would remove the user's files."""
+    if out.is_symlink() or not os.access(out.parent, os.W_OK | os.X_OK):
+        return False
+    return not out.exists() or all(entry.name in OUTPUT_FILES and entry.is_file() and not entry.is_symlink()
+                                   for entry in out.iterdir())
+
+
 def write_outputs(result: AgentEvaluation, out_dir: str | Path, caption: str) -> Path:
-    """Every output file written aside first and moved in together: a failure part-way changes nothing in `out_dir`."""
+    """Every output file written aside first and put in together: a failure part-way changes nothing in `out_dir`,
+    and where the folder holds only these files it is swapped in whole (`swapped_whole`)."""
     out = check_output_folder(out_dir)
     try:
-        with atomic_files(out) as stage:
+        with (atomic_dir(out) if swapped_whole(out) else atomic_files(out)) as stage:
             result.dataset.save(stage / "dataset.npz")
             save_table(result.metrics, stage / "ood_metrics", caption=caption)
             write_text_atomic(stage / "roc.csv", result.scores.roc.to_csv(index=False))

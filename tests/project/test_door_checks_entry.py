@@ -573,11 +573,13 @@ def test_evaluate_agent_puts_back_a_group_a_kill_left_mixed_before_collecting(tm
 
 def test_evaluate_agent_says_how_to_finish_when_the_old_results_cannot_be_put_back(tmp_path, plain_zip, monkeypatch):
     """The moves fail part-way and so does putting the old files back: the error says so (not 'as it was') and how
-    to finish, and the next run puts the old group back before it writes."""
+    to finish, and the next run puts the old group back before it writes. (A folder of the user's files too: one of
+    evaluate_agent's files only is swapped whole, with no moves to fail part-way.)"""
     from paper_lib.pipeline import evaluate_agent as module
 
     out = tmp_path / "out"
     module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    (out / "notes.txt").write_text("the user's")
     first = {name: (out / name).read_bytes() for name in module.OUTPUT_FILES}
     _fail_moves_after_the_first(monkeypatch, fail_put_back=True)
     expected = r"^moving the files into .*out failed part-way .* putting the old ones back failed too .* run " \
@@ -678,3 +680,41 @@ def test_a_page_that_left_the_sources_leaves_the_built_site(tmp_path):
     build_site.assemble(source, REPO, site)
     assert not (source / "notebooks" / "99_gone.ipynb").exists() and not (site / "notebooks" / "99_gone.html").exists()
     assert (site / "notebooks" / "03_ood_detection.html").read_text() == "old"  # a page still there is Sphinx's to rebuild
+
+
+# ----------------------------------------------------------------------------- 10. evaluate_agent's --out as one unit (issue 71)
+
+def test_evaluate_agent_swaps_a_folder_of_its_own_files_in_whole(tmp_path, plain_zip, monkeypatch):
+    """A folder holding only the last run's files is replaced as one folder (one atomic exchange, no file moved in
+    one by one), so a kill at any instant leaves the old files or the new ones, never a mix."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    first = {name: (out / name).read_bytes() for name in module.OUTPUT_FILES}
+    inode = out.stat().st_ino
+
+    def no_group_move(*args, **kwargs):
+        raise AssertionError("the files were moved in one by one")
+
+    monkeypatch.setattr(module, "atomic_files", no_group_move)
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=1, out_dir=out)
+    assert out.stat().st_ino != inode, "the folder was not swapped in whole"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"], "a temporary folder was left beside it"
+    assert sorted(p.name for p in out.iterdir()) == sorted(module.OUTPUT_FILES)
+    assert (out / "ood_metrics.csv").read_bytes() != first["ood_metrics.csv"]
+
+
+def test_evaluate_agent_keeps_the_users_files_beside_its_own(tmp_path, plain_zip):
+    """A folder that also holds the user's files is never swapped (that would remove them): the group move, whose
+    journal puts the old files back after a kill, writes the results beside them."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    inode = out.stat().st_ino
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    assert out.stat().st_ino == inode and (out / "notes.txt").read_text() == "the user's"
+    assert sorted(p.name for p in out.iterdir()) == sorted([*module.OUTPUT_FILES, "notes.txt"])
+    assert not module.swapped_whole(out) and module.swapped_whole(tmp_path / "new")
