@@ -28,7 +28,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -243,9 +243,11 @@ def check_same_run(out_dir: Path, algo: str, env_id: str, method: str, seed: int
 
 
 @contextmanager
-def run_lock(out_dir: Path) -> Iterator[Path]:
-    """One writer per run folder: an OS file lock beside it (`.<name>.lock`), held while training and dropped by the
-    kernel if the process dies, so a second training into the same folder stops at once instead of racing."""
+def run_lock(out_dir: Path, doing: str = "training",
+             fix: str = "wait for it to finish or give this run another folder") -> Iterator[Path]:
+    """One writer per run output (a checkpoint folder, a dataset, an evaluation, a scores folder): an OS file lock
+    beside it (`.<name>.lock`), held while `doing` and dropped by the kernel if the process dies, so a second writer
+    of the same output stops at once instead of racing (the last to finish would replace the other's files)."""
     from filelock import FileLock, Timeout
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -254,13 +256,19 @@ def run_lock(out_dir: Path) -> Iterator[Path]:
     try:
         lock.acquire()
     except Timeout:
-        raise DestinationError(f"another process is training into {out_dir} (it holds {path}); wait for it to "
-                               "finish or give this run another folder (nothing was changed)") from None
+        raise DestinationError(f"another process is {doing} into {out_dir} (it holds {path}); {fix} "
+                               "(nothing was changed)") from None
     try:
         yield path
     finally:
         lock.release()
         path.unlink(missing_ok=True)  # a killed holder's file stays (results/**/.*.lock is git-ignored); no lock
+
+
+def stage_lock(out: Path, doing: str) -> AbstractContextManager[Path]:
+    """The run lock of a per-run pipeline stage's output (`run_lock`): a second process writing the same run's dataset,
+    evaluation or scores stops at once, naming the output the first one holds."""
+    return run_lock(out, doing, "wait for it to finish: each run's stage runs in one process at a time")
 
 
 def finished_budget(out_dir: Path) -> int | None:

@@ -30,18 +30,23 @@ import json
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 import torch as th
 
 from paper_lib.agents.envs import is_atari
+from paper_lib.agents.training import stage_lock
 from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic,
                                  write_text_atomic)
 from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
 from paper_lib.pipeline.layout import Layout, combination_name
+
+if TYPE_CHECKING:
+    from paper_lib.agents.checkpoints import Checkpoint
+    from paper_lib.ood.datasets import StateDataset
 
 #: FPR values at which each ROC curve is kept (the TPR reachable at FPR <= x).
 ROC_GRID = np.linspace(0.0, 1.0, 201)
@@ -85,9 +90,10 @@ def evaluate_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     th.set_num_threads(1)
     th.manual_seed(10_000 + seed)  # sampled actions and MC members draw from torch: same seed, same episodes
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
-    episodes = evaluate_rewards(ckpt, cfg.eval_episodes, seed=10_000 + seed)
-    return write_text_atomic(evaluation_path(cfg, env_id, method, seed),
-                             _csv(episodes.assign(env=env_id, method=method, seed=seed)))
+    path = evaluation_path(cfg, env_id, method, seed)
+    with stage_lock(path, "evaluating"):
+        episodes = evaluate_rewards(ckpt, cfg.eval_episodes, seed=10_000 + seed)
+        return write_text_atomic(path, _csv(episodes.assign(env=env_id, method=method, seed=seed)))
 
 
 def roc_on_grid(roc: pd.DataFrame, grid: np.ndarray = ROC_GRID) -> pd.DataFrame:
@@ -371,8 +377,6 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
     from paper_lib.ood.datasets import StateDataset
-    from paper_lib.scoring.ood_scores import score_run
-    from paper_lib.scoring.perturbation_bars import perturbation_ratios
 
     out = check_scores_destination(scores_dir(cfg, env_id, method, seed), env_id)  # before any work
     th.set_num_threads(1)
@@ -382,9 +386,20 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     if not path.is_file():
         raise FileNotFoundError(f"dataset {path} is missing; collect it with `dvc repro -s collect@{env_id}-{method}-{seed}` "
                                 "(`make recollect` collects every run's)")
-    provenance = score_provenance(cfg, env_id, method, seed)  # the files as they are when scoring starts
     data = StateDataset.load(path)
     check_dataset_identity(data.metadata, path, env_id, method, seed)
+    with stage_lock(out, "scoring"):
+        return _score_locked(cfg, env_id, method, seed, ckpt, data, out)
+
+
+def _score_locked(cfg: RunConfig, env_id: str, method: str, seed: int, ckpt: Checkpoint, data: StateDataset,
+                  out: Path) -> Path:
+    """`score_run_files` once this process holds the scores folder's lock; the provenance is taken now, from the
+    files as they are when scoring starts."""
+    from paper_lib.scoring.ood_scores import score_run
+    from paper_lib.scoring.perturbation_bars import perturbation_ratios
+
+    provenance = score_provenance(cfg, env_id, method, seed)
     tag = {"env": env_id, "method": method, "seed": seed}
     run = score_run(ckpt, data, seed, cfg.n_bootstrap, n_scoring_seeds=getattr(cfg, "n_scoring_seeds", 1))
     files = {"metrics.csv": run.metrics.assign(protocol=collection_protocol(data), actions=collection_actions(data), **tag),

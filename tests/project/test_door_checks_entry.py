@@ -718,3 +718,57 @@ def test_evaluate_agent_keeps_the_users_files_beside_its_own(tmp_path, plain_zip
     assert out.stat().st_ino == inode and (out / "notes.txt").read_text() == "the user's"
     assert sorted(p.name for p in out.iterdir()) == sorted([*module.OUTPUT_FILES, "notes.txt"])
     assert not module.swapped_whole(out) and module.swapped_whole(tmp_path / "new")
+
+
+# ----------------------------------------------------------------------------- 11. one writer per run output (issue 71)
+
+def _stage_tree(root: Path) -> object:
+    """A params.yaml copy whose results live under `root`, a CartPole baseline and masksembles checkpoint each (built,
+    not trained), and the baseline's dataset: what the per-run stages read before they take their lock."""
+    import dataclasses
+    import json
+
+    from paper_lib import make_agent
+    from paper_lib.ood.datasets import StateDataset
+    from paper_lib.pipeline.config import load_run_config
+
+    cfg = dataclasses.replace(load_run_config(params_copy(root)), root=root)
+    tiny = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
+    for method in ("baseline", "masksembles"):
+        folder = cfg.checkpoint_dir("CartPole-v1", method, 0)
+        folder.mkdir(parents=True)
+        model = make_agent("ppo", method, "CartPole-v1", 0, overrides=tiny)
+        model.save(folder / "model.zip")
+        (folder / "config.json").write_text(json.dumps(model.paper_lib_config))
+    StateDataset(states=np.zeros((4, 4), dtype=np.float32), labels=[0, 0, 1, 1], source=["id", "id", "noise", "noise"],
+                 config_index=[-1] * 4, episode=[0] * 4, step=[0, 1, 2, 3],
+                 metadata={"model": {"env_id": "CartPole-v1", "method": "baseline", "seed": 0}}
+                 ).save(cfg.dataset_path("CartPole-v1", "baseline", 0))
+    return cfg
+
+
+@pytest.mark.parametrize("stage,doing", [("evaluate", "evaluating"), ("collect", "collecting"),
+                                         ("score", "scoring"), ("common_score", "scoring the common states")])
+def test_a_second_writer_of_a_runs_output_stops_at_once_naming_it(tmp_path, stage, doing):
+    """Two processes on one run's stage: the second stops before any work (the lock is held here, as the first
+    process would), naming the output and the lock; nothing on disk changes."""
+    from paper_lib.pipeline import common_states, run_results, stages
+    from paper_lib.agents.training import stage_lock
+    from paper_lib.pipeline.run_results import evaluation_path, scores_dir
+
+    cfg = _stage_tree(tmp_path)
+    method = "masksembles" if stage == "common_score" else "baseline"
+    out, call = {
+        "evaluate": (evaluation_path(cfg, "CartPole-v1", method, 0), run_results.evaluate_run),
+        "collect": (cfg.dataset_path("CartPole-v1", method, 0), stages.collect_run),
+        "score": (scores_dir(cfg, "CartPole-v1", method, 0), run_results.score_run_files),
+        "common_score": (common_states.common_scores_dir(cfg, "CartPole-v1", method, 0), common_states.score_common_files),
+    }[stage]
+    with stage_lock(out, "the first process's stage") as lock:
+        before = snapshot(tmp_path)
+        with pytest.raises(DestinationError, match=rf"^another process is {doing} into {re.escape(str(out))} \(it holds "
+                                                   rf"{re.escape(str(lock))}\); wait for it to finish: each run's stage "
+                                                   r"runs in one process at a time \(nothing was changed\)$"):
+            call(cfg, "CartPole-v1", method, 0)
+        assert snapshot(tmp_path) == before
+    assert not lock.exists()  # the holder removes its lock file when it lets go
