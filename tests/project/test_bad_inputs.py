@@ -33,6 +33,7 @@ from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.agents.training import train_run
 from paper_lib.ood.atari import AtariOODConfig
 from paper_lib.ood.atari_head import LABEL_HEADER, load_atari_head_states
+from paper_lib.ood.datasets import StateDataset
 from paper_lib.ood.mujoco import PerturbationConfig
 from paper_lib.pipeline.config import load_run_config, use_profile
 from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent
@@ -130,6 +131,10 @@ def ws(tmp_path_factory) -> SimpleNamespace:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     _damaged_scores(root / "scores")
+    # perturbed states relabelled as ID: label and source changed, config_index still names their configuration
+    StateDataset(states=np.zeros((4, 4), dtype=np.float32), labels=[0] * 4, source=["id"] * 4,
+                 config_index=[-1, -1, 0, 0], episode=[0, 0, 1, 1], step=[0, 1, 0, 1],
+                 configs=['{"env_id": "HalfCheetah-v5", "gravity": [0.0, 0.0, -15.0]}']).save(root / "relabelled.npz")
     return SimpleNamespace(root=root, ck=ck, params=root / "params.yaml", text=(root / "params.yaml").read_text())
 
 
@@ -443,6 +448,10 @@ API_CASES: list[tuple[str, Callable, str]] = [
     ("evaluation-every-episode-twice", evaluation(7), r"seed7\.csv holds 6 episodes per action mode and inference, but "
      r"the profile plays 3 \(eval_episodes\): episodes were added twice or the file is of another profile; evaluate the "
      r"run again \(`python -m paper_lib\.pipeline\.run_results evaluate HalfCheetah-v5 baseline 7`\)"),
+    ("dataset-relabelled-ood-states", lambda ws: partial(StateDataset.load, ws.root / "relabelled.npz"),
+     r"relabelled\.npz: 2 of 4 states of source 'id' point at an OOD configuration \(e\.g\. state 2: config_index 0\); "
+     r"ID states are collected in the unmodified env \(config_index -1\), so these are relabelled OOD states: collect "
+     r"the states again \(`make recollect`\) or correct the labels"),
     # score files cut off, of another run, or without their record (issue 71)
     ("scores-metrics-cut-in-half", scores("metrics_half"), r"metrics_half/results/paper/scores/HalfCheetah-v5/baseline/"
      r"seed0/metrics\.csv is incomplete \(cut off\?\): its last line ends mid-row; score the run again \(`python -m "
