@@ -148,13 +148,33 @@ def notebook_pages(profile: str, root: Path = ROOT) -> list[NotebookPage]:
                              f"results/${{run.profile}}/notebooks/{executed.name}); the site names the stage of "
                              "every page: add the stage or remove the stale copy")
         stage, source = stages[executed.name]
-        nb = nbformat.read(executed, as_version=4)
+        nb = read_notebook(executed, stage, root)
         title = next((line[2:].strip() for cell in nb.cells if cell.cell_type == "markdown"
                       for line in cell.source.splitlines() if line.startswith("# ")), Path(executed.name).stem)
         pages.append(NotebookPage(executed.name, executed, executed.relative_to(root).as_posix(), source, stage, title))
     if not pages:
         raise ValueError(f"no executed notebook in {folder.relative_to(root)}/: `make reproduce` writes them")
+    missing = sorted(set(stages) - {page.name for page in pages})
+    if missing:  # a page left out would leave the previous build's copy of it on the site, stale
+        where = (folder / missing[0]).relative_to(root)
+        raise ValueError(f"{where} is missing (the DVC stage {stages[missing[0]][0]} writes it"
+                         + (f"; {len(missing) - 1} more are missing too" if len(missing) > 1 else "")
+                         + f"): run `dvc repro {stages[missing[0]][0]}` or restore the committed copy with "
+                         f"`git checkout {where}`; the site was not built")
     return pages
+
+
+def read_notebook(path: Path, stage: str, root: Path = ROOT):
+    """An executed notebook, or one error naming it and its stage when it is truncated or not a notebook."""
+    import nbformat
+
+    try:
+        return nbformat.read(path, as_version=4)
+    except Exception as err:  # a truncated JSON file, or not a notebook: nbformat's errors vary by cause
+        where = path.relative_to(root) if path.is_relative_to(root) else path
+        raise ValueError(f"{where} is not a readable notebook (cut off?) ({type(err).__name__}: {err}); run `dvc repro "
+                         f"{stage}` or restore the committed copy with `git checkout {where}`; the site was not "
+                         "built") from None
 
 
 def provenance_note(page: NotebookPage, profile: str) -> str:
@@ -170,7 +190,7 @@ def page_notebook(page: NotebookPage, profile: str) -> str:
     """The executed notebook with the provenance note right under its title (outputs untouched)."""
     import nbformat
 
-    nb = nbformat.read(page.executed, as_version=4)
+    nb = read_notebook(page.executed, page.stage)
     note = nbformat.v4.new_markdown_cell(provenance_note(page, profile))
     first = nb.cells[0] if nb.cells else None
     if first is not None and first.cell_type == "markdown" and first.source.startswith("# "):
@@ -268,8 +288,11 @@ def write_if_changed(path: Path, text: str) -> None:
     path.write_text(text, encoding="utf-8")
 
 
-def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookPage]:
-    """Lay out the site's sources in `source_dir` from docs/, README.md and the executed notebooks."""
+def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT, site_dir: Path = SITE_DIR) -> list[NotebookPage]:
+    """Lay out the site's sources in `source_dir` from docs/, README.md and the executed notebooks.
+
+    A page whose source left is removed from `site_dir` too: Sphinx builds only the pages it has, and would keep
+    the previous build's copy of a removed one on the site."""
     profile = active_profile(root)
     pages = notebook_pages(profile, root)
     docs = sorted(p.stem for p in (root / "docs").glob("*.md"))
@@ -293,6 +316,7 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
         rel = path.relative_to(source_dir).as_posix()
         if path.is_file() and rel not in wanted:
             path.unlink()
+            (site_dir / Path(rel).with_suffix(".html")).unlink(missing_ok=True)
         elif path.is_dir() and not any(path.iterdir()):
             path.rmdir()
     return pages

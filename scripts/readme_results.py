@@ -21,6 +21,7 @@ truncated README or page.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -62,6 +63,46 @@ BENCH_ROWS = (
      "Seaquest, peak memory scoring 4096 states, above the process (issue target: 1.5x)"),
 )
 FREE_PREFIXES = ("mahalanobis", "knn")
+#: A Markdown table's cell border: a pipe that is not escaped.
+CELL_BORDER = re.compile(r"(?<!\\)\|")
+
+
+def _refuse(path: Path, problem: str) -> None:
+    """One error naming the table and the fix; raised while pasting in memory, so no file is written."""
+    raise SystemExit(f"{path} {problem}; run the stage that writes it again (`make reproduce`, or `git checkout "
+                     f"{path}` for the committed copy): nothing was written")
+
+
+def table_csv(path: Path) -> pd.DataFrame:
+    """A committed table's CSV, refused when missing or cut off (its last line ends mid-row or it holds no row)."""
+    if not path.is_file():
+        _refuse(path, "is missing")
+    text = path.read_text(encoding="utf-8")
+    if not text.endswith("\n"):
+        _refuse(path, "is incomplete (cut off?): its last line ends mid-row")
+    try:
+        return pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        _refuse(path, f"is not a readable CSV ({type(err).__name__}: {err})")
+        raise  # unreachable: for type checkers
+
+
+def table_md(path: Path) -> str:
+    """A committed Markdown table, whole: every row as wide as its header and as many rows as its CSV holds.
+
+    A truncated .md pasted as it is would replace a table of eight rows with one, without a word."""
+    if not path.is_file():
+        _refuse(path, "is missing")
+    text = path.read_text(encoding="utf-8").strip()
+    rows = [line for line in text.splitlines() if line.startswith("|")]
+    widths = [len(CELL_BORDER.findall(row)) for row in rows]  # a pipe inside a cell is escaped (\\|)
+    if len(rows) < 2 or any(not row.endswith("|") or width != widths[0] for row, width in zip(rows, widths)):
+        _refuse(path, "is incomplete (cut off?): its table has a row cut short or no header")
+    csv = path.with_suffix(".csv")
+    if csv.exists() and len(table_csv(csv)) != len(rows) - 2:
+        _refuse(path, f"is incomplete (cut off?): its table has {len(rows) - 2} rows but {csv.name} has "
+                      f"{len(table_csv(csv))}")
+    return text
 
 
 def _range(values: pd.Series) -> str:
@@ -71,7 +112,7 @@ def _range(values: pd.Series) -> str:
 
 def reward_lines(layout: Layout) -> list[str]:
     """Ours against the paper, per run cell that exists (sampled actions, as the paper's Table 1)."""
-    vs = pd.read_csv(layout.table("paper_vs_us_rewards", "csv")).dropna(subset=["ours"])
+    vs = table_csv(layout.table("paper_vs_us_rewards", "csv")).dropna(subset=["ours"])
     lines = []
     for env, rows in vs.groupby("env", sort=False):
         cells = [f"{r.method} ({r.inference}) {r.ours:.0f} vs {r.paper:.0f}" for r in rows.itertuples()]
@@ -81,8 +122,8 @@ def reward_lines(layout: Layout) -> list[str]:
 
 def auroc_lines(layout: Layout) -> list[str]:
     """Per env: member measures against member-free detectors on perturbed states, and the paper's cells."""
-    auroc = pd.read_csv(layout.table("ood_auroc_perturbed", "csv"))
-    paper = pd.read_csv(layout.table("paper_vs_us_auroc", "csv"))
+    auroc = table_csv(layout.table("ood_auroc_perturbed", "csv"))
+    paper = table_csv(layout.table("paper_vs_us_auroc", "csv"))
     envs = [c for c in auroc.columns if c not in ("method", "measure")]
     lines = []
     for env in envs:
@@ -102,7 +143,7 @@ def verdict_lines(layout: Layout) -> list[str]:
     path = layout.table("paper_claims", "csv")
     if not path.exists():
         return []
-    claims = pd.read_csv(path)
+    claims = table_csv(path)
     lines = []
     for claim, rows in claims.groupby("claim", sort=False):
         by_verdict = rows.groupby("verdict", sort=False)["env"].agg(lambda envs: ", ".join(envs))
@@ -128,7 +169,7 @@ def repeated_games_line(layout: Layout) -> str:
     path = layout.reward_episodes
     if not path.exists():
         return ""
-    episodes = pd.read_csv(path)
+    episodes = table_csv(path)
     return (f"\n\nRepeated games (notebook 2, `reward_repeated_games.md`): "
             f"{repeated_games_note(repeated_games(episodes), episodes)}")
 
@@ -150,7 +191,7 @@ def training_time(layout: Layout) -> str:
 
 def bench_table(csv: Path) -> str:
     """The methods' cost ratios against plain SB3 PPO, one row per `BENCH_ROWS` entry, bold where a target is met."""
-    bench = pd.read_csv(csv)
+    bench = table_csv(csv)
     lines = ["| | " + " | ".join({"masksembles": "Masksembles", "mc_dropout": "MC Dropout",
                                    "mc_dropconnect": "MC DropConnect", "ensemble": "Ensemble (k=4)"}[m]
                                   for m in BENCH_METHODS) + " | target |", "|---" * (len(BENCH_METHODS) + 2) + "|"]
@@ -175,7 +216,7 @@ def bench_table(csv: Path) -> str:
 
 def probe_table(csv: Path) -> str:
     """Every recipe probe's training reward (mean over its seeds) and final evaluation, one row per probe."""
-    probes = pd.read_csv(csv)
+    probes = table_csv(csv)
     cell = lambda v: "-" if pd.isna(v) else v if isinstance(v, str) else f"{v:.0f}"
     lines = ["| probe (env/variant) | " + " | ".join(h for _, h in PROBE_COLUMNS) + " |",
              "|---" * (len(PROBE_COLUMNS) + 1) + "|"]
@@ -188,15 +229,15 @@ def value_level_part(layout: Layout) -> str:
     """Notebook 13's table with its computed reading: how much of value std's AUROC is the value level."""
     from paper_lib.experiments.value_level import value_level_reading
 
-    lines = value_level_reading(pd.read_csv(layout.table("value_level", "csv")))
+    lines = value_level_reading(table_csv(layout.table("value_level", "csv")))
     return (f"### Is value uncertainty more than a low value? (notebook 13, beyond the paper)\n\n"
-            f"{layout.table('value_level', 'md').read_text().strip()}\n\n" + "\n".join(f"- {line}" for line in lines))
+            f"{table_md(layout.table('value_level', 'md'))}\n\n" + "\n".join(f"- {line}" for line in lines))
 
 
 def independent_part(layout: Layout) -> str:
     """Notebook 11's independent ensembles beside the paper's appendix B.2 numbers, and its generated reading."""
     ensembles = layout.table_folder("ensembles")
-    table = (ensembles / "ensembles_independent_vs_paper.md").read_text().strip()
+    table = table_md(ensembles / "ensembles_independent_vs_paper.md")
     reading = (ensembles / "ensembles_independent_reading.md").read_text().strip().split("\n\n", 1)[-1]
     return f"### Independently trained ensembles against the paper (notebook 11, appendix B.2)\n\n{table}\n\n{reading}"
 
@@ -204,7 +245,7 @@ def independent_part(layout: Layout) -> str:
 def own_vs_shared_part(layout: Layout) -> str:
     """Notebook 11's own-vs-shared table and its generated reading."""
     ensembles = layout.table_folder("ensembles")
-    table = (ensembles / "ensembles_own_vs_shared.md").read_text().strip()
+    table = table_md(ensembles / "ensembles_own_vs_shared.md")
     reading = (ensembles / "ensembles_own_vs_shared_reading.md").read_text().strip().split("\n\n", 1)[-1]
     return f"### Does keeping each member on-policy help? `own` vs `shared` (notebook 11, beyond the paper)\n\n{table}\n\n{reading}"
 
@@ -223,37 +264,37 @@ def study_part(layout: Layout) -> str:
 def _other_algorithms_part(layout: Layout) -> str:
     """Notebook 9's check of appendix C's A2C/TRPO readings, once those studies are read."""
     versus = layout.table_folder("study") / "study_other_algs_vs_paper.md"
-    if not versus.exists() or not len(pd.read_csv(versus.with_suffix(".csv"))):
+    if not versus.exists() or not len(table_csv(versus.with_suffix(".csv"))):
         return ""
-    return f"\n\nA2C and TRPO against appendix C:\n\n{versus.read_text().strip()}"
+    return f"\n\nA2C and TRPO against appendix C:\n\n{table_md(versus)}"
 
 
 def scaling_part(layout: Layout) -> str:
     """Notebook 10's comparison with appendix E, once scaling runs are read."""
     scaling = layout.table_folder("scaling")
     return (f"### Scaling the hidden layers against the paper (notebook 10, appendix E)\n\n"
-            f"{(scaling / 'scaling_vs_paper.md').read_text().strip()}\n\n"
+            f"{table_md(scaling / 'scaling_vs_paper.md')}\n\n"
             f"Final rewards per width: `{scaling / 'scaling_final_reward.md'}`.")
 
 
 def headline_part(layout: Layout) -> str:
     """The README's headline table: the committed `HEADLINE_TABLE` as it is, and the file it comes from."""
     headline = layout.table(HEADLINE_TABLE, "md")
-    return f"{headline.read_text(encoding='utf-8').strip()}\n\n(Pasted from `{headline}`.)"
+    return f"{table_md(headline)}\n\n(Pasted from `{headline}`.)"
 
 
 def aggregate_parts(layout: Layout) -> list[str]:
     """Across envs first (the reader's first question): rliable's aggregates of reward and AUROC (notebooks 2, 3)."""
     stems = (("reward_aggregates", "Across envs: reward"), ("reward_improvement", "Across envs: P(more reward)"),
              ("auroc_aggregates", "Across envs: OOD detection"), ("auroc_improvement", "Across envs: P(higher AUROC)"))
-    return [f"### {title}\n\n{layout.table(stem, 'md').read_text().strip()}" for stem, title in stems
+    return [f"### {title}\n\n{table_md(layout.table(stem, 'md'))}" for stem, title in stems
             if layout.table(stem, "md").exists()]
 
 
 def results_part(layout: Layout) -> str:
     """Everything docs/results.md shows between its markers: run count, Tables 1 and 2, the readings."""
     def md(stem: str) -> str:
-        return layout.table(stem, "md").read_text().strip()
+        return table_md(layout.table(stem, "md"))
 
     parts = [f"Runs: {run_count(layout)} (the list: `{layout.status_file}`). {training_time(layout)}".strip(),
              *aggregate_parts(layout),
@@ -274,7 +315,7 @@ def results_part(layout: Layout) -> str:
     if (study / "study_reading.md").exists():
         parts.append(study_part(layout))
     versus = layout.table_folder("scaling") / "scaling_vs_paper.csv"
-    if versus.exists() and len(pd.read_csv(versus)):
+    if versus.exists() and len(table_csv(versus)):
         parts.append(scaling_part(layout))
     return "\n\n".join(parts)
 

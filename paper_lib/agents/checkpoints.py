@@ -21,7 +21,7 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, VecTransposeImage
 
-from paper_lib.agents.envs import make_env
+from paper_lib.agents.envs import make_env, normalizer_env_id
 from paper_lib.agents.factory import ACTIVATIONS, ALGORITHMS
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
@@ -186,6 +186,10 @@ def _check_normalizer(norm: Path, config: dict[str, Any], data: dict[str, Any], 
     space = data.get("observation_space")
     if not isinstance(saved, VecNormalize):
         raise ValueError(f"{norm} holds a {type(saved).__name__}, not a VecNormalize; {retrain}")
+    recorded = normalizer_env_id(saved)
+    if recorded is not None and recorded != config.get("env_id"):
+        raise ValueError(f"{norm} was saved for {recorded} but {norm.parent / 'config.json'} says "
+                         f"{config.get('env_id')}: another run's normalizer was put here; {retrain}")
     shape = getattr(getattr(saved, "obs_rms", None), "mean", None)
     if space is not None and shape is not None and tuple(shape.shape) != tuple(space.shape):
         raise ValueError(f"{norm} normalizes observations of shape {tuple(shape.shape)} but model.zip takes "

@@ -112,6 +112,49 @@ def make_single_env(env_id: str, **gym_kwargs: Any) -> gym.Env:
     return gym.make(env_id, **{**default_env_kwargs(env_id), **gym_kwargs})
 
 
+def wrapped_env_ids(venv: VecEnv) -> list[str]:
+    """The Gymnasium ids a VecEnv runs (through any wrappers); [] where it cannot say."""
+    try:
+        return sorted({spec.id for spec in venv.get_attr("spec") if spec is not None})
+    except (AttributeError, TypeError):  # a VecEnv that cannot say which env it runs
+        return []
+
+
+def check_given_env(venv: VecEnv, env_id: str, where: str = "make_agent") -> None:
+    """A given env must run `env_id`: a model of one env trained in another's would save the first's config.json.
+
+    Named by its ids where it can say them, else by its observation shape against `env_id`'s."""
+    ids = wrapped_env_ids(venv)
+    if ids and ids != [env_id]:
+        raise ValueError(f"{where}: the given env runs {', '.join(ids)} but env_id is {env_id!r}; pass an env of "
+                         f"{env_id} (make_env({env_id!r}, n_envs, seed)) or env_id={ids[0]!r}")
+    if ids:
+        return
+    reference = make_env(env_id, 1, 0)
+    shape = reference.observation_space.shape
+    reference.close()
+    if venv.observation_space.shape != shape:
+        raise ValueError(f"{where}: the given env has observations of shape {venv.observation_space.shape} but "
+                         f"{env_id}'s have shape {shape}; pass an env of {env_id} (make_env({env_id!r}, n_envs, seed))")
+
+
+#: The attribute a saved VecNormalize records its env id under (pickled with it; SB3 keeps unknown attributes).
+NORMALIZER_ENV_ID = "paper_lib_env_id"
+
+
+def save_normalizer(normalizer: VecNormalize, path: Path, env_id: str) -> None:
+    """VecNormalize.save with the env id recorded: a pkl holds only statistics, so one of another env of the same
+    observation shape (HalfCheetah, Walker2d: 17) could not be told apart when loaded."""
+    setattr(normalizer, NORMALIZER_ENV_ID, env_id)
+    normalizer.save(str(path))
+
+
+def normalizer_env_id(normalizer: VecNormalize) -> str | None:
+    """The env id a saved normalizer recorded; None for one saved before the id was recorded. Read from the
+    instance itself: VecEnvWrapper's attribute lookup would search an unpickled one's absent venv without end."""
+    return vars(normalizer).get(NORMALIZER_ENV_ID)
+
+
 def check_env_seed(seed: Any, where: str = "make_env") -> int | None:
     """`seed` as a plain int (gymnasium refuses numpy integers such as the np.int64 it hands out itself).
 

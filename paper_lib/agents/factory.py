@@ -16,7 +16,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
-from paper_lib.agents.envs import is_atari, make_env
+from paper_lib.agents.envs import check_given_env, is_atari, make_env
 from paper_lib.common.checks import check_keys
 from paper_lib.methods.buffer import MemberOrderedRolloutBuffer
 from paper_lib.methods.groups import MemberGroupVecEnv, check_groups_match, check_member_layout
@@ -360,8 +360,10 @@ def make_agent(
                        env_processes=env_processes)
     elif env.num_envs != n_envs:
         raise ValueError(f"the given env has {env.num_envs} envs but n_envs={n_envs}")
-    elif method != "baseline":
-        check_groups_match(env, n_members)
+    else:
+        check_given_env(env, env_id)
+        if method != "baseline":
+            check_groups_match(env, n_members)
     if config["linear_lr_decay"]:
         algo_kwargs["learning_rate"] = LinearSchedule(algo_kwargs["learning_rate"], 0.0, 1.0)
 

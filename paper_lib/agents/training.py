@@ -28,7 +28,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +38,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from paper_lib.agents.envs import is_atari
+from paper_lib.agents.envs import is_atari, save_normalizer
 from paper_lib.agents.factory import HP_OPTIONAL, config_value, make_agent
 from paper_lib.common.io import DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic
 from paper_lib.common.provenance import machine, package_versions
@@ -124,7 +124,7 @@ def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, f
         model.save(tmp / "model.zip")  # includes the optimizer state
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:
-            normalizer.save(str(tmp / "vecnormalize.pkl"))
+            save_normalizer(normalizer, tmp / "vecnormalize.pkl", model.paper_lib_config["env_id"])
         state = {"num_timesteps": model.num_timesteps, "n_updates": getattr(model, "_n_updates", 0),
                  "ep_info_buffer": list(model.ep_info_buffer or []), "rows": rows, "wall_seconds": wall_seconds,
                  "segments": segments or [],
@@ -243,9 +243,11 @@ def check_same_run(out_dir: Path, algo: str, env_id: str, method: str, seed: int
 
 
 @contextmanager
-def run_lock(out_dir: Path) -> Iterator[Path]:
-    """One writer per run folder: an OS file lock beside it (`.<name>.lock`), held while training and dropped by the
-    kernel if the process dies, so a second training into the same folder stops at once instead of racing."""
+def run_lock(out_dir: Path, doing: str = "training",
+             fix: str = "wait for it to finish or give this run another folder") -> Iterator[Path]:
+    """One writer per run output (a checkpoint folder, a dataset, an evaluation, a scores folder): an OS file lock
+    beside it (`.<name>.lock`), held while `doing` and dropped by the kernel if the process dies, so a second writer
+    of the same output stops at once instead of racing (the last to finish would replace the other's files)."""
     from filelock import FileLock, Timeout
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -254,13 +256,19 @@ def run_lock(out_dir: Path) -> Iterator[Path]:
     try:
         lock.acquire()
     except Timeout:
-        raise DestinationError(f"another process is training into {out_dir} (it holds {path}); wait for it to "
-                               "finish or give this run another folder (nothing was changed)") from None
+        raise DestinationError(f"another process is {doing} into {out_dir} (it holds {path}); {fix} "
+                               "(nothing was changed)") from None
     try:
         yield path
     finally:
         lock.release()
         path.unlink(missing_ok=True)  # a killed holder's file stays (results/**/.*.lock is git-ignored); no lock
+
+
+def stage_lock(out: Path, doing: str) -> AbstractContextManager[Path]:
+    """The run lock of a per-run pipeline stage's output (`run_lock`): a second process writing the same run's dataset,
+    evaluation or scores stops at once, naming the output the first one holds."""
+    return run_lock(out, doing, "wait for it to finish: each run's stage runs in one process at a time")
 
 
 def finished_budget(out_dir: Path) -> int | None:
@@ -346,7 +354,7 @@ def _train_locked(env_id: str, method: str, seed: int, out_dir: Path, algo: str,
         model.save(tmp / "model.zip")
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:
-            normalizer.save(str(tmp / "vecnormalize.pkl"))
+            save_normalizer(normalizer, tmp / "vecnormalize.pkl", model.paper_lib_config["env_id"])
         pd.DataFrame(curve.rows).to_csv(tmp / "training_curve.csv", index=False)
         write_json_atomic(tmp / "config.json", config)
     return out_dir

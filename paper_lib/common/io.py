@@ -139,8 +139,12 @@ def check_folder_destination(path: str | os.PathLike[str], what: str = "output f
     """Refuse a folder destination that cannot be written, before the work that would fill it.
 
     `path` may be missing (it is created on writing) or an existing folder; a file there, a path under a file,
-    or a folder that cannot be written is one DestinationError naming it. Nothing is created here.
+    or a folder that cannot be written is one DestinationError naming it. Nothing is created here. An empty path
+    is refused: Path("") is the current folder, which nobody means by an empty --out.
     """
+    if not str(os.fspath(path)).strip():
+        raise DestinationError(f"{what} is empty ({os.fspath(path)!r}), which would write into the current folder; "
+                               "give a folder path (e.g. --out results/my_agent), or leave it out to write nothing")
     target = Path(path)
     if os.path.lexists(target) and not target.is_dir():
         kind = "a broken link" if target.is_symlink() else "a file"

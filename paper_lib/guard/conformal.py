@@ -95,13 +95,14 @@ def conformal_threshold(calibration_scores: np.ndarray, alpha: float, unit: str 
                         confidence: float | None = None) -> float:
     """The k-th smallest calibration score (k from ``conformal_rank``); a test score above it is flagged.
 
-    Raises one ValueError naming the fix when the scores are not finite or too few for alpha.
+    Raises one ValueError naming the fix when the scores are not finite (NaN, +-inf) or too few for alpha.
     ``unit`` names what one score stands for (states, episodes) in that message.
     """
     alpha, confidence = check_alpha(alpha), check_confidence(confidence)
     scores = np.asarray(calibration_scores, dtype=float).reshape(-1)
-    if scores.size and np.isnan(scores).any():
-        raise ValueError(f"the calibration scores hold NaN ({int(np.isnan(scores).sum())} of {scores.size}); "
+    if scores.size and not np.isfinite(scores).all():
+        raise ValueError(f"the calibration scores hold NaN or inf ({int((~np.isfinite(scores)).sum())} of {scores.size}; "
+                         "an inf threshold never alarms, -inf always does); "
                          f"drop those {unit} or fix the score function.")
     n = check_calibration_size(scores.size, alpha, unit, confidence)
     k = conformal_rank(n, alpha, confidence)

@@ -91,6 +91,11 @@ def _describe(identity: dict[str, Any]) -> str:
     return f"a {identity.get('class')} {what or identity.get('policy')}{seed} (weights {identity['fingerprint'][:12]})"
 
 
+def describe_model(model: BaseAlgorithm | BasePolicy) -> str:
+    """A model as error messages name it: class, method, env, seed and the start of its weights' hash."""
+    return _describe(model_identity(model))
+
+
 def needs_normalization(model: BaseAlgorithm | BasePolicy) -> bool:
     """Whether the agent acts on VecNormalize-d observations (its scores must be computed on those)."""
     config = getattr(model, "paper_lib_config", None) or {}

@@ -21,10 +21,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
 
-from paper_lib.guard.core import Guard, GuardMonitor, Reading, needs_normalization
+from paper_lib.guard.core import Guard, GuardMonitor, Reading, describe_model, model_fingerprint, needs_normalization
 
 
 def _check_normalizer(guard: Guard, vecnormalize: VecNormalize | None) -> None:
@@ -34,6 +35,17 @@ def _check_normalizer(guard: Guard, vecnormalize: VecNormalize | None) -> None:
     if vecnormalize is None and needs_normalization(guard.model):
         raise ValueError("the agent acts on VecNormalize-d observations, so the guard must score those: pass "
                          "vecnormalize= the VecNormalize saved with the model (with training=False).")
+
+
+def _check_guard_model(model: BaseAlgorithm, guard: Guard) -> None:
+    """A guard calibrated on another model's scores sets its threshold for other weights: refuse it, naming both.
+    An object that only has SB3's predict has no weights to compare; the guard scores with its own model."""
+    if model is guard.model or not isinstance(model, (BaseAlgorithm, BasePolicy)) \
+            or model_fingerprint(model) == model_fingerprint(guard.model):
+        return
+    raise ValueError(f"the guard was calibrated for {describe_model(guard.model)}, but the model given is "
+                     f"{describe_model(model)}; its scores would not match the calibration. Pass the model the guard "
+                     "was calibrated with, or calibrate a new guard for this model.")
 
 
 class GuardWrapper(gym.Wrapper):
@@ -110,6 +122,7 @@ class GuardedPolicy:
                              f"{type(fallback).__name__}.")
         if on_alarm is not None and not callable(on_alarm):
             raise ValueError(f"on_alarm must be a function of an Alarm, got {type(on_alarm).__name__}.")
+        _check_guard_model(model, guard)
         self.fallback = fallback
         self.monitor: GuardMonitor | None = None
         self.last: Reading | None = None

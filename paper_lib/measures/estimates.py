@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import is_image_space
 
@@ -53,7 +54,41 @@ def check_observations(policy: ActorCriticPolicy, observations: np.ndarray, *, s
                          f"(its observation space is {space}); pass states of the env it was trained on, "
                          "stacked along a first axis")
     check_finite(obs, what=what)  # NaN, inf, or a float64 that is inf as float32
+    check_pixel_range(space, obs, what)
     return obs, vectorized
+
+
+def check_pixel_range(space: spaces.Space, obs: np.ndarray, what: str = "observations") -> None:
+    """Integer (pixel) spaces take their own dtype's values: frames scaled to [0, 1] or negative ints would be scored
+    as other frames (the policy divides by 255 itself). Float spaces' bounds are not enforced: OOD states may leave them."""
+    if not isinstance(space, spaces.Box) or not np.issubdtype(space.dtype, np.integer):
+        return
+    low, high = int(np.min(space.low)), int(np.max(space.high))
+    if not np.issubdtype(obs.dtype, np.integer):
+        raise ValueError(f"{what} are {obs.dtype} but this policy's observation space holds {space.dtype} frames in "
+                         f"[{low}, {high}]; pass the raw frames (the policy scales them itself), not frames divided "
+                         "by 255 or converted to float")
+    lowest, highest = int(obs.min()), int(obs.max())
+    if lowest < low or highest > high:
+        raise ValueError(f"{what} hold values in [{lowest}, {highest}] but this policy's observation space holds "
+                         f"{space.dtype} frames in [{low}, {high}]; pass the raw frames as the env returns them")
+
+
+def as_policy(model_or_policy: Any, where: str = "uncertainty") -> ActorCriticPolicy:
+    """The policy of an SB3 model, or the policy itself: `uncertainty(model, obs)` means `model.policy`."""
+    if isinstance(model_or_policy, BaseAlgorithm):
+        model_or_policy = model_or_policy.policy
+    if not isinstance(model_or_policy, ActorCriticPolicy):
+        raise ValueError(f"{where} takes an SB3 actor-critic model or its policy (model.policy), got "
+                         f"{type(model_or_policy).__name__}; pass e.g. make_agent(...) or PPO.load(path)")
+    return model_or_policy
+
+
+def check_sample_seed(seed: Any) -> int | None:
+    """None or an integer: int() would read seed=1.5 as 1 and "7" as 7, the scores of another seed without a word."""
+    if seed is None or (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
+        return None if seed is None else int(seed)
+    raise ValueError(f"seed must be None or an integer >= 0 (the MC masks' seed), got {seed!r}; pass e.g. seed=0")
 
 
 def check_batch_size(batch_size: Any) -> int:
@@ -92,7 +127,7 @@ def _batches(policy: ActorCriticPolicy, obs: np.ndarray, batch_size: int, seed: 
                 yield _single_member(policy, tensor)
 
 
-def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+def member_outputs(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, batch_size: int = 1024,
                    seed: int | None = None) -> MemberOutputs:
     """All members on all states, in batches of `batch_size` states, one forward pass each.
 
@@ -100,6 +135,7 @@ def member_outputs(policy: ActorCriticPolicy, observations: np.ndarray, batch_si
     baseline policy is returned as a single member (k = 1). MC methods sample per (member,
     state) from per-state seeds drawn from `seed` (torch's global RNG when None).
     """
+    policy, seed = as_policy(policy, "member_outputs"), check_sample_seed(seed)
     discrete = isinstance(policy.action_space, spaces.Discrete)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
@@ -119,7 +155,7 @@ def _single_member(policy: ActorCriticPolicy, obs: th.Tensor) -> tuple[th.Tensor
     return policy.action_net(latent_pi)[None], policy.value_net(latent_vf).squeeze(-1)[None]
 
 
-def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wanted: tuple[str, ...] | None = None,
+def uncertainty(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, measures_wanted: tuple[str, ...] | None = None,
                 batch_size: int = 1024, seed: int | None = None) -> dict[str, np.ndarray]:
     """Every applicable measure, each of shape (N,).
 
@@ -129,6 +165,7 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
     `seed` fixes the MC methods' samples (see `member_outputs`). The measures are computed in
     torch on each batch's member outputs (`measures.torch_measures`); only they become numpy.
     """
+    policy, seed = as_policy(policy), check_sample_seed(seed)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     discrete = isinstance(policy.action_space, spaces.Discrete)
@@ -151,7 +188,7 @@ def uncertainty(policy: ActorCriticPolicy, observations: np.ndarray, measures_wa
     return {name: th.cat(values).cpu().numpy() for name, values in parts.items()}
 
 
-def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_size: int = 1024,
+def policy_features(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, batch_size: int = 1024,
                     seed: int | None = None) -> np.ndarray:
     """The policy's last hidden layer on N states, (N, H): the input of its action head.
 
@@ -159,6 +196,7 @@ def policy_features(policy: ActorCriticPolicy, observations: np.ndarray, batch_s
     (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
     MC methods sample per (member, state), seeded like `member_outputs`.
     """
+    policy, seed = as_policy(policy, "policy_features"), check_sample_seed(seed)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     seeds = _state_seeds(policy, len(obs), seed)

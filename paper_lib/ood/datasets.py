@@ -242,8 +242,9 @@ def label_contradictions(dataset: StateDataset) -> np.ndarray:
 
 
 def check_labels(dataset: StateDataset, where: str = "the dataset") -> None:
-    """Refuse a dataset whose labels contradict their sources: scored, its OOD states would count as ID (or the
-    reverse) and every AUROC would be wrong without any error. `where` names the file in the message."""
+    """Refuse a dataset whose labels contradict their sources, or whose ID states name an OOD configuration: scored,
+    its OOD states would count as ID (or the reverse) and every AUROC would be wrong without any error. `where` names
+    the file in the message."""
     wrong = np.flatnonzero(label_contradictions(dataset))
     if wrong.size:
         i = int(wrong[0])
@@ -252,6 +253,13 @@ def check_labels(dataset: StateDataset, where: str = "the dataset") -> None:
                          f"(e.g. state {i}: source {str(dataset.source[i])!r} labelled {label}); ID states, and only "
                          f"they, come from source {ID_SOURCE!r}: collect the states again (`make recollect`) or "
                          "correct the labels")
+    configured = np.flatnonzero((dataset.source == ID_SOURCE) & (dataset.config_index != NO_CONFIG))
+    if configured.size:  # OOD states relabelled as ID (label and source both changed) still name their configuration
+        i = int(configured[0])
+        raise ValueError(f"{where}: {configured.size} of {len(dataset)} states of source {ID_SOURCE!r} point at an OOD "
+                         f"configuration (e.g. state {i}: config_index {int(dataset.config_index[i])}); ID states are "
+                         f"collected in the unmodified env (config_index {NO_CONFIG}), so these are relabelled OOD "
+                         "states: collect the states again (`make recollect`) or correct the labels")
 
 
 def _stored_states(data: dict[str, np.ndarray], fmt: str) -> np.ndarray:

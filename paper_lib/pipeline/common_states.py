@@ -18,17 +18,26 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 import torch as th
 
+from paper_lib.agents.training import stage_lock
 from paper_lib.common.io import atomic_dir, write_json_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
 from paper_lib.pipeline.layout import COMMON_STATES_OF as STATES_OF
 from paper_lib.pipeline.layout import common_runs  # noqa: F401 (this module's readers use it with read_common)
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
-                                             check_dataset_identity, provenance_record, run_identity)
+                                             check_dataset_identity, provenance_record, read_replicate_matrix,
+                                             read_score_csv, replicates_by_metric, run_identity)
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from paper_lib.agents.checkpoints import Checkpoint
+    from paper_lib.ood.datasets import StateDataset
 
 FOLDER = "common_scores"
 FILES = ("metrics.csv", "replicates.npy", PROVENANCE_FILE)
@@ -74,7 +83,6 @@ def score_common_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> P
     """Score run (env, method, seed)'s checkpoint on the baseline's dataset of that seed; write its files at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
     from paper_lib.ood.datasets import StateDataset
-    from paper_lib.scoring.ood_scores import score_run
 
     if method == STATES_OF:
         raise ValueError(f"the {STATES_OF}'s own scores are on the common states already: score a member method")
@@ -90,6 +98,15 @@ def score_common_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> P
     data = StateDataset.load(path)
     check_dataset_identity(data.metadata, path, env_id, STATES_OF, seed)
     vecnormalize = saved_normalizer(ckpt.vecnormalize_path)
+    with stage_lock(out, "scoring the common states"):
+        return _score_common_locked(cfg, env_id, method, seed, ckpt, data, vecnormalize, out, provenance)
+
+
+def _score_common_locked(cfg: RunConfig, env_id: str, method: str, seed: int, ckpt: Checkpoint, data: StateDataset,
+                         vecnormalize: VecNormalize | None, out: Path, provenance: dict) -> Path:
+    """`score_common_files` once this process holds the common scores folder's lock."""
+    from paper_lib.scoring.ood_scores import score_run
+
     run = score_run(ckpt, for_policy(data, vecnormalize), seed, cfg.n_bootstrap,
                     n_scoring_seeds=getattr(cfg, "n_scoring_seeds", 1), vecnormalize=vecnormalize)
     metrics = run.metrics.assign(states="common", states_of=STATES_OF, env=env_id, method=method, seed=seed)
@@ -111,15 +128,15 @@ def read_common(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.Da
                                     f"{run[0]}-{run[1]}-{run[2]}` (`make reproduce` makes every stale one)")
         import json
 
+        rescore = f"score it again (`python -m paper_lib.pipeline.common_states {run[0]} {run[1]} {run[2]}`)"
         if json.loads((folder / PROVENANCE_FILE).read_text()) != common_provenance(cfg, *run):
             raise ValueError(f"{folder} was scored from other files than {run[0]} {run[1]} seed {run[2]}'s checkpoint "
-                             f"and the {STATES_OF}'s dataset hold now: score it again (`python -m "
-                             f"paper_lib.pipeline.common_states {run[0]} {run[1]} {run[2]}`)")
-        metrics = pd.read_csv(folder / "metrics.csv")
-        matrix = np.load(folder / "replicates.npy")
+                             f"and the {STATES_OF}'s dataset hold now: {rescore}")
+        metrics = read_score_csv(folder, "metrics.csv", run_identity(*run), rescore)
+        matrix = read_replicate_matrix(folder, len(metrics), rescore)
         frames.append(metrics)
-        for ood_set, measure, row in zip(metrics["ood_set"], metrics["measure"], matrix):
-            replicates[(*run, ood_set, measure)] = row[~np.isnan(row)].astype(float)
+        for (ood_set, measure), row in replicates_by_metric(metrics, matrix).items():
+            replicates[(*run, ood_set, measure)] = row
     return (pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()), replicates
 
 

@@ -16,7 +16,9 @@ detection error, OOD positive.
 from __future__ import annotations
 
 import argparse
+import os
 import pickle
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,9 +30,9 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.agents.checkpoints import check_loadable_algorithm, zip_algorithm
-from paper_lib.agents.envs import is_atari, make_env
+from paper_lib.agents.envs import is_atari, make_env, normalizer_env_id, wrapped_env_ids
 from paper_lib.agents.factory import ALGORITHMS, check_device
-from paper_lib.common.io import (MixedFilesError, atomic_files, check_folder_destination, recover_files,
+from paper_lib.common.io import (MixedFilesError, atomic_dir, atomic_files, check_folder_destination, recover_files,
                                  write_text_atomic)
 from paper_lib.ood.atari import ATARI_GAMES
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
@@ -116,9 +118,23 @@ def load_vecnormalize(path: str | Path, env_id: str, seed: int) -> VecNormalize:
     except Exception as err:
         raise ValueError(f"cannot load {path} as a VecNormalize for {env_id} ({type(err).__name__}: {err})") from err
     check_vecnormalize(venv, env_id, str(path))
+    check_recorded_env(venv, env_id, path)
     venv.set_venv(make_env(env_id, 1, seed))
     venv.training, venv.norm_reward = False, False
     return venv
+
+
+def check_recorded_env(vecnormalize: VecNormalize, env_id: str, path: Path) -> None:
+    """A pkl saved by paper_lib records its env: another env's is refused. An older one (or SB3's own) cannot say,
+    so it is accepted with a warning: a normalizer of another env with the same observation shape would pass."""
+    recorded = normalizer_env_id(vecnormalize)
+    if recorded is None:
+        warnings.warn(f"{path} records no env id (saved before paper_lib recorded one, or by plain SB3): it is taken "
+                      f"to be {env_id}'s; a normalizer of another env with observations of the same shape would be "
+                      "applied without a word. Check it is the one the agent was trained with", stacklevel=3)
+    elif recorded != env_id:
+        raise ValueError(f"{path} was saved for {recorded}, but the agent is evaluated on {env_id}: give the "
+                         f"VecNormalize the agent was trained with on {env_id}")
 
 
 def check_vecnormalize(vecnormalize: VecNormalize, env_id: str, where: str = "the VecNormalize") -> None:
@@ -133,10 +149,7 @@ def check_vecnormalize(vecnormalize: VecNormalize, env_id: str, where: str = "th
                          f"{env_id}'s have shape {shape}: it belongs to another env; give the VecNormalize the agent "
                          f"was trained with on {env_id}")
     wrapped = getattr(vecnormalize, "venv", None)
-    try:
-        ids = sorted({spec.id for spec in wrapped.get_attr("spec") if spec is not None}) if wrapped is not None else []
-    except (AttributeError, TypeError):  # a VecEnv that cannot say which env it runs
-        ids = []
+    ids = wrapped_env_ids(wrapped) if wrapped is not None else []
     if ids and ids != [env_id]:
         raise ValueError(f"{where} wraps {', '.join(ids)}, but the agent is evaluated on {env_id}: give the "
                          f"VecNormalize the agent was trained with on {env_id}")
@@ -212,11 +225,23 @@ def check_output_folder(out_dir: str | Path) -> Path:
     return out
 
 
+def swapped_whole(out: Path) -> bool:
+    """Whether `out` can be replaced as one folder: new, or holding this command's files only (a previous run's), as a
+    real folder whose parent takes the new one beside it. Then a kill at any instant leaves the old files or the new
+    ones, never a mix; a folder that also holds the user's files gets the group move (`atomic_files`) instead, whose
+    journal puts the old files back at the next call, since swapping the folder would remove the user's files."""
+    if out.is_symlink() or not os.access(out.parent, os.W_OK | os.X_OK):
+        return False
+    return not out.exists() or all(entry.name in OUTPUT_FILES and entry.is_file() and not entry.is_symlink()
+                                   for entry in out.iterdir())
+
+
 def write_outputs(result: AgentEvaluation, out_dir: str | Path, caption: str) -> Path:
-    """Every output file written aside first and moved in together: a failure part-way changes nothing in `out_dir`."""
+    """Every output file written aside first and put in together: a failure part-way changes nothing in `out_dir`,
+    and where the folder holds only these files it is swapped in whole (`swapped_whole`)."""
     out = check_output_folder(out_dir)
     try:
-        with atomic_files(out) as stage:
+        with (atomic_dir(out) if swapped_whole(out) else atomic_files(out)) as stage:
             result.dataset.save(stage / "dataset.npz")
             save_table(result.metrics, stage / "ood_metrics", caption=caption)
             write_text_atomic(stage / "roc.csv", result.scores.roc.to_csv(index=False))

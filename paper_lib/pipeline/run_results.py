@@ -28,19 +28,25 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 import torch as th
 
 from paper_lib.agents.envs import is_atari
+from paper_lib.agents.training import stage_lock
 from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable_dir, write_json_atomic,
                                  write_text_atomic)
 from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
 from paper_lib.pipeline.layout import Layout, combination_name
+
+if TYPE_CHECKING:
+    from paper_lib.agents.checkpoints import Checkpoint
+    from paper_lib.ood.datasets import StateDataset
 
 #: FPR values at which each ROC curve is kept (the TPR reachable at FPR <= x).
 ROC_GRID = np.linspace(0.0, 1.0, 201)
@@ -84,9 +90,10 @@ def evaluate_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     th.set_num_threads(1)
     th.manual_seed(10_000 + seed)  # sampled actions and MC members draw from torch: same seed, same episodes
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
-    episodes = evaluate_rewards(ckpt, cfg.eval_episodes, seed=10_000 + seed)
-    return write_text_atomic(evaluation_path(cfg, env_id, method, seed),
-                             _csv(episodes.assign(env=env_id, method=method, seed=seed)))
+    path = evaluation_path(cfg, env_id, method, seed)
+    with stage_lock(path, "evaluating"):
+        episodes = evaluate_rewards(ckpt, cfg.eval_episodes, seed=10_000 + seed)
+        return write_text_atomic(path, _csv(episodes.assign(env=env_id, method=method, seed=seed)))
 
 
 def roc_on_grid(roc: pd.DataFrame, grid: np.ndarray = ROC_GRID) -> pd.DataFrame:
@@ -162,10 +169,13 @@ def describe_identity(identity: dict[str, Any]) -> str:
     return f"{identity.get('env')} {identity.get('method')} {tail}"
 
 
-def identity_error(path: Path, found: dict[str, Any], wanted: dict[str, Any]) -> ValueError:
+#: How to get a run's own dataset or evaluation back, the default fix of `identity_error`.
+RECOLLECT = "put back this run's file (`make recollect` collects it again)"
+
+
+def identity_error(path: Path, found: dict[str, Any], wanted: dict[str, Any], fix: str = RECOLLECT) -> ValueError:
     return ValueError(f"{path} belongs to {describe_identity(found)}, not to {describe_identity(wanted)} whose path it "
-                      "sits at: a file of another run is never read as this one's; put back this run's file (`make "
-                      "recollect` collects it again)")
+                      f"sits at: a file of another run is never read as this one's; {fix}")
 
 
 def check_dataset_identity(metadata: dict[str, Any], path: Path, env_id: str, method: str, seed: int) -> None:
@@ -176,14 +186,18 @@ def check_dataset_identity(metadata: dict[str, Any], path: Path, env_id: str, me
         raise identity_error(path, found, run_identity(env_id, method, seed))
 
 
-def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, method: str, seed: int) -> None:
-    """Every episode of the evaluation file at a run's path must be that run's (its env, method, seed columns)."""
+def check_evaluation_identity(episodes: pd.DataFrame, path: Path, env_id: str, method: str, seed: int,
+                              fix: str = RECOLLECT) -> None:
+    """Every row of the file at a run's path (evaluation episodes, scores) must be that run's (its env, method, seed
+    columns). A file with a header but no row (a baseline's over_time.csv) names no run and passes."""
+    if episodes.empty and all(key in episodes for key in ("env", "method", "seed")):
+        return
     for key, value in (("env", env_id), ("method", method), ("seed", seed)):
         values = set(episodes[key]) if key in episodes else {None}
         if values != {value}:
             found = {k: ", ".join(map(str, sorted(set(episodes[k]), key=str))) if k in episodes else None
                      for k in ("env", "method", "seed")}
-            raise identity_error(path, found, run_identity(env_id, method, seed))
+            raise identity_error(path, found, run_identity(env_id, method, seed), fix)
 
 
 # ----------------------------------------------------------------------------- provenance: scores <- their inputs
@@ -270,7 +284,7 @@ def check_provenance(folder: Path, identity: dict[str, Any], inputs: dict[str, P
                          f"which the command checks first (`{backfill}`), or {rescore}")
     recorded = _read_provenance(path, rescore, backfill)
     if any(recorded.get(key) != identity.get(key) for key in IDENTITY_KEYS):
-        raise identity_error(path, recorded, identity)
+        raise identity_error(path, recorded, identity, rescore)
     for name, file in inputs.items():
         if not inputs[_anchor(name)].is_file():
             continue
@@ -336,8 +350,7 @@ def provenance_to_record(cfg: RunConfig, env_id: str, method: str, seed: int, re
     folder = scores_dir(cfg, env_id, method, seed)
     if not (folder / "metrics.csv").is_file():
         raise FileNotFoundError(f"{folder} holds no scores (no metrics.csv): {rescore}")
-    metrics = pd.read_csv(folder / "metrics.csv")
-    check_evaluation_identity(metrics, folder / "metrics.csv", env_id, method, seed)
+    read_score_csv(folder, "metrics.csv", run_identity(env_id, method, seed), rescore)  # whole, and this run's
     provenance = score_provenance(cfg, env_id, method, seed)
     inputs = provenance_inputs(cfg, env_id, method, seed)
     with np.load(inputs["dataset"], allow_pickle=False) as data:
@@ -364,8 +377,6 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
     from paper_lib.ood.datasets import StateDataset
-    from paper_lib.scoring.ood_scores import score_run
-    from paper_lib.scoring.perturbation_bars import perturbation_ratios
 
     out = check_scores_destination(scores_dir(cfg, env_id, method, seed), env_id)  # before any work
     th.set_num_threads(1)
@@ -375,9 +386,20 @@ def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path
     if not path.is_file():
         raise FileNotFoundError(f"dataset {path} is missing; collect it with `dvc repro -s collect@{env_id}-{method}-{seed}` "
                                 "(`make recollect` collects every run's)")
-    provenance = score_provenance(cfg, env_id, method, seed)  # the files as they are when scoring starts
     data = StateDataset.load(path)
     check_dataset_identity(data.metadata, path, env_id, method, seed)
+    with stage_lock(out, "scoring"):
+        return _score_locked(cfg, env_id, method, seed, ckpt, data, out)
+
+
+def _score_locked(cfg: RunConfig, env_id: str, method: str, seed: int, ckpt: Checkpoint, data: StateDataset,
+                  out: Path) -> Path:
+    """`score_run_files` once this process holds the scores folder's lock; the provenance is taken now, from the
+    files as they are when scoring starts."""
+    from paper_lib.scoring.ood_scores import score_run
+    from paper_lib.scoring.perturbation_bars import perturbation_ratios
+
+    provenance = score_provenance(cfg, env_id, method, seed)
     tag = {"env": env_id, "method": method, "seed": seed}
     run = score_run(ckpt, data, seed, cfg.n_bootstrap, n_scoring_seeds=getattr(cfg, "n_scoring_seeds", 1))
     files = {"metrics.csv": run.metrics.assign(protocol=collection_protocol(data), actions=collection_actions(data), **tag),
@@ -421,7 +443,7 @@ def read_evaluations(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.Dat
     frames = []
     for run in runs:
         path = evaluation_path(cfg, *run)
-        episodes = read_evaluation_file(path, *run)
+        episodes = read_evaluation_file(path, *run, n_episodes=getattr(cfg, "eval_episodes", None))
         check_evaluation_identity(episodes, path, *run)
         frames.append(episodes)
     return pd.concat(frames, ignore_index=True)
@@ -431,12 +453,13 @@ def read_evaluations(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.Dat
 EVALUATION_COLUMNS = ("inference", "deterministic", "member", "reward", "length", "env", "method", "seed")
 
 
-def read_evaluation_file(path: Path, env_id: str, method: str, seed: int) -> pd.DataFrame:
+def read_evaluation_file(path: Path, env_id: str, method: str, seed: int, n_episodes: int | None = None) -> pd.DataFrame:
     """A run's evaluation episodes, refused with one error naming the file where it is not whole.
 
     A file cut off (a copy or a write interrupted) must not become a reward table of fewer episodes, or an error
     deep in the statistics: `evaluate_run` ends every file with a line end, writes every column of every episode,
-    and plays as many episodes in each (action mode, inference) as in every other, each action mode of the env.
+    and plays as many episodes in each (action mode, inference) as in every other, each action mode of the env:
+    `n_episodes` (the profile's eval_episodes) where given.
     """
     from paper_lib.scoring.rewards import action_modes
 
@@ -447,13 +470,7 @@ def read_evaluation_file(path: Path, env_id: str, method: str, seed: int) -> pd.
     if not path.is_file():
         raise FileNotFoundError(f"no evaluation file {path}: evaluate the run "
                                 f"(`python -m paper_lib.pipeline.run_results evaluate {env_id} {method} {seed}`)")
-    raw = path.read_bytes()
-    if not raw.endswith(b"\n"):
-        raise incomplete("it is empty" if not raw else "its last line ends mid-row")
-    try:
-        episodes = pd.read_csv(path)
-    except (ValueError, UnicodeDecodeError) as err:  # pandas' parser errors are ValueErrors
-        raise incomplete(f"it is not a readable CSV ({type(err).__name__}: {' '.join(str(err).split())})") from None
+    episodes = read_whole_csv(path, incomplete)
     missing = [c for c in EVALUATION_COLUMNS if c not in episodes]
     if missing:
         raise incomplete(f"it lacks the column(s) {missing}")
@@ -467,15 +484,79 @@ def read_evaluation_file(path: Path, env_id: str, method: str, seed: int) -> pd.
     if set(counts.index) != expected or counts.nunique() != 1:
         found = ", ".join(f"{n} {i} {'deterministic' if d else 'sampled'}" for (d, i), n in counts.items())
         raise incomplete(f"each action mode and inference needs as many episodes as the others, got {found}")
+    if n_episodes is not None and counts.iloc[0] != n_episodes:  # e.g. every episode twice: a file appended to itself
+        raise ValueError(f"{path} holds {counts.iloc[0]} episodes per action mode and inference, but the profile plays "
+                         f"{n_episodes} (eval_episodes): episodes were added twice or the file is of another "
+                         f"profile; evaluate the run again (`python -m paper_lib.pipeline.run_results evaluate {env_id} "
+                         f"{method} {seed}`)")
     return episodes
+
+
+def read_whole_csv(path: Path, incomplete: Callable[[str], Exception]) -> pd.DataFrame:
+    """A CSV the pipeline wrote, or `incomplete(what)` raised: every writer ends its files with a line end, so a file
+    without one was cut off mid-row (pandas would read the rows before the cut without a word)."""
+    raw = path.read_bytes()
+    if not raw.endswith(b"\n"):
+        raise incomplete("it is empty" if not raw else "its last line ends mid-row")
+    try:
+        return pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError) as err:  # pandas' parser errors are ValueErrors
+        raise incomplete(f"it is not a readable CSV ({type(err).__name__}: {' '.join(str(err).split())})") from None
+
+
+def read_score_csv(folder: Path, name: str, identity: dict[str, Any], rescore: str) -> pd.DataFrame:
+    """One score file, whole and of the run whose folder holds it (its env, method, seed columns), or one error naming
+    the file and `rescore`: a file cut off or copied from another run is never read as this run's."""
+    path = folder / name
+
+    def incomplete(what: str) -> ValueError:
+        return ValueError(f"{path} is incomplete (cut off?): {what}; {rescore}")
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing: the scores of {describe_identity(identity)} are not whole; "
+                                f"{rescore}")
+    frame = read_whole_csv(path, incomplete)
+    check_evaluation_identity(frame, path, identity["env"], identity["method"], identity["seed"], rescore)
+    if name == "roc.csv" and len(frame):  # the ROC of every (ood_set, measure) on the same grid: a cut drops points
+        sizes = frame.groupby(["ood_set", "measure"], sort=False).size()
+        if set(sizes) != {len(ROC_GRID)}:
+            raise incomplete(f"each ROC needs {len(ROC_GRID)} points, got {sorted(set(sizes))}")
+    return frame
+
+
+def read_replicate_matrix(folder: Path, rows: int, rescore: str) -> np.ndarray:
+    """replicates.npy, one row per row of the metrics.csv beside it (`rows`), or one error naming it and `rescore`."""
+    path = folder / "replicates.npy"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing: the scores in {folder} are not whole; {rescore}")
+    try:
+        matrix = np.load(path, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as err:  # a cut .npy: its header promises more bytes than follow
+        raise ValueError(f"{path} is incomplete (cut off?): it is not a readable .npy ({type(err).__name__}: "
+                         f"{err}); {rescore}") from None
+    if matrix.ndim != 2 or len(matrix) != rows:
+        raise ValueError(f"{path} holds {len(matrix) if matrix.ndim else 0} rows but the metrics.csv beside it has "
+                         f"{rows} (one row of replicates per metric): one of them is cut off or of another scoring; "
+                         f"{rescore}")
+    return matrix
+
+
+def read_run_metrics(cfg: RunConfig, run: tuple[str, str, int]) -> tuple[pd.DataFrame, np.ndarray]:
+    """(metrics.csv, replicates.npy) of one run: whole, of this run, row for row, from its current files."""
+    check_score_provenance(cfg, *run, required=True)
+    folder, rescore = scores_dir(cfg, *run), _run_fixes(*run)[0]
+    metrics = read_score_csv(folder, "metrics.csv", run_identity(*run), rescore)
+    return metrics, read_replicate_matrix(folder, len(metrics), rescore)
+
+
+def replicates_by_metric(metrics: pd.DataFrame, matrix: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
+    """Each (ood_set, measure)'s replicates: its row of `matrix` without the NaN padding."""
+    return {(o, m): row[~np.isnan(row)].astype(float) for o, m, row in zip(metrics["ood_set"], metrics["measure"], matrix)}
 
 
 def read_replicates(cfg: RunConfig, run: tuple[str, str, int]) -> dict[tuple[str, str], np.ndarray]:
     """One run's AUROC bootstrap replicates per (ood_set, measure), e.g. for `statistics.seed_cluster_ci` over seeds."""
-    check_score_provenance(cfg, *run)
-    folder = scores_dir(cfg, *run)
-    metrics, matrix = pd.read_csv(folder / "metrics.csv"), np.load(folder / "replicates.npy")
-    return {(o, m): row[~np.isnan(row)].astype(float) for o, m, row in zip(metrics["ood_set"], metrics["measure"], matrix)}
+    return replicates_by_metric(*read_run_metrics(cfg, run))
 
 
 def read_all_replicates(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> dict[tuple[str, str, int, str, str], np.ndarray]:
@@ -484,13 +565,16 @@ def read_all_replicates(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> dic
 
 
 def read_scores(cfg: RunConfig, runs: list[tuple[str, str, int]], name: str) -> pd.DataFrame:
-    """One of the score files (`metrics`, `roc`, `over_time`, `perturbation_ratios`) of `runs`, concatenated; scores
-    whose provenance names other inputs than the run's current files are refused (`check_score_provenance`)."""
+    """One of the score files (`metrics`, `roc`, `over_time`, `perturbation_ratios`) of `runs`, concatenated. Scores
+    without a provenance record, or whose record names other inputs than the run's current files, are refused
+    (`check_score_provenance`), and so is a file cut off or of another run (`read_score_csv`)."""
     if f"{name}.csv" not in SCORE_FILES:
         raise ValueError(f"unknown score file {name!r}; use one of {[f[:-4] for f in SCORE_FILES]}")
     for run in runs:
-        check_score_provenance(cfg, *run)
-    frames = [pd.read_csv(scores_dir(cfg, *run) / f"{name}.csv") for run in runs]
+        check_score_provenance(cfg, *run, required=True)
+    frames = [read_run_metrics(cfg, run)[0] if name == "metrics" else
+              read_score_csv(scores_dir(cfg, *run), f"{name}.csv", run_identity(*run), _run_fixes(*run)[0])
+              for run in runs]
     frames = [f for f in frames if not f.empty] or frames[:1]
     return pd.concat(frames, ignore_index=True)
 
@@ -499,15 +583,16 @@ def read_source_coverage(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd
     """The source coverage rows (one per run) of the Atari runs among `runs`, for a table; empty if none."""
     from paper_lib.ood.coverage import COVERAGE_COLUMNS
 
-    for run in runs:
-        if is_atari(run[0]):
-            check_score_provenance(cfg, *run)
-    paths = [scores_dir(cfg, *run) / ATARI_SCORE_FILES[0] for run in runs if is_atari(run[0])]
+    atari = [run for run in runs if is_atari(run[0])]
+    for run in atari:
+        check_score_provenance(cfg, *run, required=True)
+    paths = [scores_dir(cfg, *run) / ATARI_SCORE_FILES[0] for run in atari]
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise FileNotFoundError(f"no source coverage file {missing[0]} ({len(missing)} missing): score those runs "
                                 "again (`python -m paper_lib.pipeline.run_results score <env> <method> <seed>`).")
-    frames = [pd.read_csv(p) for p in paths]
+    frames = [read_score_csv(scores_dir(cfg, *run), ATARI_SCORE_FILES[0], run_identity(*run), _run_fixes(*run)[0])
+              for run in atari]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*COVERAGE_COLUMNS, "env",
                                                                                      "method", "seed"])
 

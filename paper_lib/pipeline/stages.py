@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.agents.envs import is_atari
+from paper_lib.agents.training import stage_lock
 from paper_lib.ood.atari_head import atari_head_ood_dataset
 from paper_lib.ood.collect import ActionMode, collect_atari_ood_states, collect_id_states, collect_mujoco_ood_states
 from paper_lib.ood.datasets import StateDataset, concat
@@ -73,7 +74,9 @@ def collect_run(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     """`collect_states` of one trained run of the active profile, saved as its dataset."""
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
     vecnormalize = ckpt.env(1, seed) if ckpt.vecnormalize_path is not None else None
-    return collect_states(cfg, ckpt.model, env_id, seed, vecnormalize).save(cfg.dataset_path(env_id, method, seed))
+    path = cfg.dataset_path(env_id, method, seed)
+    with stage_lock(path, "collecting"):
+        return collect_states(cfg, ckpt.model, env_id, seed, vecnormalize).save(path)
 
 
 def main() -> None:

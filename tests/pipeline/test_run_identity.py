@@ -22,7 +22,7 @@ def _episodes(env: str, method: str, seed: int) -> pd.DataFrame:
 
 
 def test_another_seeds_evaluation_at_a_runs_path_is_refused_naming_both(tmp_path):
-    cfg = dataclasses.replace(load_run_config(REPO / "params.yaml"), profile="tiny", root=tmp_path)
+    cfg = dataclasses.replace(load_run_config(REPO / "params.yaml"), profile="tiny", root=tmp_path, eval_episodes=1)
     for seed, rows_of in ((0, 1), (1, 1)):  # seed 1's episodes copied to seed 0's path
         path = evaluation_path(cfg, "HalfCheetah-v5", "baseline", seed)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -131,14 +131,18 @@ def test_another_runs_scores_at_a_runs_path_are_refused(tree):
         read_scores(cfg, RUNS, "over_time")
 
 
-def test_scores_without_a_record_are_read_and_an_unreadable_record_is_refused(tree):
+def test_scores_without_a_record_are_refused_by_the_readers_and_an_unreadable_record_too(tree):
+    """Issue 71: a folder without its record could hold any run's files; the readers refuse it, naming the backfill."""
     cfg = config(tree)
     path = scores_dir(cfg, *RUNS[0]) / PROVENANCE_FILE
-    path.unlink()  # scores made before the record existed (the committed ones until they are backfilled)
-    _edit_dataset(cfg, RUNS[0])
-    check_score_provenance(cfg, *RUNS[0])
-    assert len(read_scores(cfg, RUNS[:1], "perturbation_ratios")) == 0  # the baseline's is empty, and read
-    assert read_source_coverage(cfg, RUNS).empty  # MuJoCo: no coverage rows
+    path.unlink()  # scores made before the record existed
+    check_score_provenance(cfg, *RUNS[0])  # the check itself passes it over where not required
+    for read in (lambda: read_scores(cfg, RUNS[:1], "perturbation_ratios"), lambda: read_all_replicates(cfg, RUNS[:1])):
+        with pytest.raises(ValueError, match=rf"the scores {path.parent} have no provenance\.json: .* record it from the "
+                                             rf"current files, which the command checks first \(`python -m "
+                                             rf"paper_lib\.pipeline\.run_results provenance {ENV} baseline 0`\)"):
+            read()
+    assert read_source_coverage(cfg, RUNS).empty  # MuJoCo: no coverage rows, no record needed
     for text in ('{"env": "HalfCheetah-v5",', '{"env": "HalfCheetah-v5", "method": "baseline", "seed": 0}'):
         path.write_text(text)  # cut off; whole JSON but not a record (no format, no digests)
         with pytest.raises(ValueError, match=rf"{path} is not a readable provenance record"):

@@ -18,7 +18,7 @@ import subprocess
 import sys
 import tarfile
 from collections.abc import Callable
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -28,15 +28,16 @@ import numpy as np
 import pytest
 import yaml
 
-from paper_lib import make_agent
+from paper_lib import make_agent, uncertainty
 from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.agents.training import train_run
 from paper_lib.ood.atari import AtariOODConfig
 from paper_lib.ood.atari_head import LABEL_HEADER, load_atari_head_states
+from paper_lib.ood.datasets import StateDataset
 from paper_lib.ood.mujoco import PerturbationConfig
 from paper_lib.pipeline.config import load_run_config, use_profile
 from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent
-from paper_lib.pipeline.run_results import read_evaluations
+from paper_lib.pipeline.run_results import read_all_replicates, read_evaluations, read_scores
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -67,7 +68,7 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     """The workspace: a params.yaml copy, checkpoints with wrong identities, an Atari-HEAD copy."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from paper_lib.agents.envs import make_env
+    from paper_lib.agents.envs import make_env, save_normalizer
 
     root = tmp_path_factory.mktemp("bad_inputs")
     shutil.copy(REPO / "params.yaml", root / "params.yaml")
@@ -89,6 +90,9 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     VecNormalize(make_env("CartPole-v1", 1, 0)).save(str(ck / "stray_norm" / "vecnormalize.pkl"))
     _save_checkpoint(ck / "garbage_norm", "ppo", "ensemble", {"normalize_obs": True})
     (ck / "garbage_norm" / "vecnormalize.pkl").write_bytes(b"\x80\x04garbage")
+    # a normalizer that records another env (of CartPole's shape) where config.json says CartPole-v1
+    _save_checkpoint(ck / "norm_other_env", "ppo", "ensemble", {"normalize_obs": True})
+    save_normalizer(VecNormalize(make_env("CartPole-v1", 1, 0)), ck / "norm_other_env" / "vecnormalize.pkl", "CartPole-v0")
     _save_checkpoint(ck / "bad_json", "ppo", "ensemble")
     (ck / "bad_json" / "config.json").write_text('{"env_id": "CartPole-v1",')
     # Atari-HEAD copies: a label file with a corrupt archive, and with a truncated one
@@ -114,17 +118,51 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(agents / "halfcheetah.zip")
     VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(agents / "swimmer_vecnormalize.pkl"))
     (agents / "not_vecnormalize.pkl").write_bytes(pickle.dumps({"obs_rms": None}))
+    save_normalizer(VecNormalize(make_env("Walker2d-v5", 1, 0)), agents / "walker_saved_vecnormalize.pkl", "Walker2d-v5")
     # evaluation files cut off: mid-row, after the header, at a row boundary, to nothing (seeds 0-3 of one run)
     whole = _evaluation_text()
     lines = whole.splitlines(keepends=True)
     damaged = ("reward,length\n100.0,1000\n",  # another file's columns
                "".join(lines[:-1]) + "single,False,,,1000,HalfCheetah-v5,baseline,0\n",  # an episode without its reward
                "".join(lines) + "single,False,,1.0,1000,HalfCheetah-v5,baseline,0,7,8\n")  # a row of too many fields
-    for seed, text in enumerate((whole[:-9], lines[0], "".join(lines[:-1]), "", *damaged)):
+    twice = whole + "".join(lines[1:])  # every episode twice (a file appended to itself)
+    for seed, text in enumerate((whole[:-9], lines[0], "".join(lines[:-1]), "", *damaged, twice)):
         path = root / "evals" / "results" / "paper" / "evaluations" / "HalfCheetah-v5" / "baseline" / f"seed{seed}.csv"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
+    _damaged_scores(root / "scores")
+    # perturbed states relabelled as ID: label and source changed, config_index still names their configuration
+    StateDataset(states=np.zeros((4, 4), dtype=np.float32), labels=[0] * 4, source=["id"] * 4,
+                 config_index=[-1, -1, 0, 0], episode=[0, 0, 1, 1], step=[0, 1, 0, 1],
+                 configs=['{"env_id": "HalfCheetah-v5", "gravity": [0.0, 0.0, -15.0]}']).save(root / "relabelled.npz")
     return SimpleNamespace(root=root, ck=ck, params=root / "params.yaml", text=(root / "params.yaml").read_text())
+
+
+#: A committed run whose scores the score-file cases copy and damage, and another run of its env and seed.
+SCORED, OTHER_SCORED = ("HalfCheetah-v5", "baseline", 0), ("HalfCheetah-v5", "masksembles", 0)
+
+
+def _scores_folder(tree: Path, run: tuple[str, str, int]) -> Path:
+    return tree / "results" / "paper" / "scores" / run[0] / run[1] / f"seed{run[2]}"
+
+
+def _damaged_scores(root: Path) -> None:
+    """One results tree per damage, each holding the committed scores of SCORED (their inputs absent, as in a checkout
+    without datasets: the provenance record is checked for its identity only) with one file damaged."""
+    def cut(name: str, at: Callable[[bytes], int]) -> Callable[[Path], None]:
+        return lambda folder: (folder / name).write_bytes((folder / name).read_bytes()[: at((folder / name).read_bytes())])
+
+    damages = {
+        "metrics_half": cut("metrics.csv", lambda b: len(b) // 2),
+        "metrics_at_a_row": cut("metrics.csv", lambda b: b.rindex(b"\n", 0, len(b) // 2) + 1),
+        "replicates_half": cut("replicates.npy", lambda b: len(b) // 2),
+        "roc_of_another_run": lambda folder: shutil.copy(_scores_folder(REPO, OTHER_SCORED) / "roc.csv", folder),
+        "no_provenance": lambda folder: (folder / "provenance.json").unlink(),
+    }
+    for name, damage in damages.items():
+        folder = _scores_folder(root / name, SCORED)
+        shutil.copytree(_scores_folder(REPO, SCORED), folder)
+        damage(folder)
 
 
 def _evaluation_text() -> str:
@@ -199,8 +237,18 @@ def evaluation(seed: int) -> Callable[[SimpleNamespace], Callable[[], Any]]:
     """read_evaluations (what the rewards notebook calls) on the evaluation file of seed `seed`, cut off."""
     import dataclasses
 
-    return lambda ws: partial(read_evaluations, dataclasses.replace(load_run_config(ws.params), root=ws.root / "evals"),
-                              [("HalfCheetah-v5", "baseline", seed)])
+    return lambda ws: partial(read_evaluations, dataclasses.replace(load_run_config(ws.params), root=ws.root / "evals",
+                                                                    eval_episodes=3), [("HalfCheetah-v5", "baseline", seed)])
+
+
+def scores(damage: str, name: str = "metrics", reader: Callable | None = None) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """read_scores (notebooks 3-5) of SCORED's `name` file in the tree with `damage`; `reader(cfg, runs)` instead."""
+    import dataclasses
+
+    def prepare(ws: SimpleNamespace) -> Callable[[], Any]:
+        cfg = dataclasses.replace(load_run_config(ws.params), root=ws.root / "scores" / damage)
+        return partial(reader, cfg, [SCORED]) if reader else partial(read_scores, cfg, [SCORED], name)
+    return prepare
 
 
 def own_agent(vecnormalize: Callable[[SimpleNamespace], Any]) -> Callable[[SimpleNamespace], Callable[[], Any]]:
@@ -238,6 +286,56 @@ def budget_entry(profile: str, key: str, value: Any) -> Callable[[dict], None]:
 def head(name: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
     return lambda ws: partial(load_atari_head_states, ws.root / "head" / name, "Seaquest", 1,
                               np.random.default_rng(0), frame_skip=1)
+
+
+@cache
+def _cartpole(method: str = "ensemble", seed: int = 0) -> Any:
+    """A CartPole agent, built once per module (the cases only read it)."""
+    return make_agent("ppo", method, "CartPole-v1", seed, n_envs=4, overrides=dict(TINY))
+
+
+@cache
+def _seaquest() -> Any:
+    """A Seaquest agent: its policy takes uint8 frames in [0, 255]."""
+    return make_agent("ppo", "baseline", "SeaquestNoFrameskip-v4", 0, n_envs=2, overrides=dict(TINY))
+
+
+def given_env(env_id: str) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """make_agent for CartPole-v1 handed an env of `env_id`."""
+    from paper_lib.agents.envs import make_env
+
+    return lambda ws: partial(make_agent, "ppo", "ensemble", "CartPole-v1", 0, n_envs=4, overrides=dict(TINY),
+                              env=make_env(env_id, 4, 0))
+
+
+def calibrated_on(scores: np.ndarray) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """Guard.from_scores on these calibration scores."""
+    from paper_lib.guard import Guard
+    from paper_lib.guard.scores import CallableScore
+
+    return lambda ws: partial(Guard.from_scores, _cartpole(), CallableScore(lambda s: s[:, 0], "x"), scores, 0.1)
+
+
+def guard_of_another_seed(ws: SimpleNamespace) -> Callable[[], Any]:
+    """GuardedPolicy of the seed-1 agent with a guard calibrated on the seed-0 agent."""
+    from paper_lib.guard import Guard, GuardedPolicy
+    from paper_lib.guard.scores import CallableScore
+
+    guard = Guard.from_scores(_cartpole(), CallableScore(lambda s: s[:, 0], "x"), np.arange(20.0), 0.1)
+    return partial(GuardedPolicy, _cartpole(seed=1), guard, fallback=None)
+
+
+def scored(obs: Callable[[], np.ndarray], atari: bool = False, **kwargs: Any) -> Callable[[SimpleNamespace], Callable[[], Any]]:
+    """uncertainty on `obs()` by the Seaquest (atari) or the CartPole agent's policy."""
+    return lambda ws: partial(uncertainty, (_seaquest() if atari else _cartpole()).policy, obs(), **kwargs)
+
+
+def frames() -> np.ndarray:
+    return np.random.default_rng(0).integers(0, 256, (2, 84, 84, 4), dtype=np.uint8)
+
+
+def cartpole_states() -> np.ndarray:
+    return np.zeros((3, 4), dtype=np.float32)
 
 
 # (id, prepare(ws) -> call, regex the one error message must match)
@@ -347,6 +445,28 @@ API_CASES: list[tuple[str, Callable, str]] = [
     ("evaluation-other-columns", evaluation(4), r"seed4\.csv is incomplete .*: it lacks the column\(s\) \['inference', "),
     ("evaluation-empty-reward", evaluation(5), r"seed5\.csv is incomplete .*: some episodes have no reward;"),
     ("evaluation-unparsable", evaluation(6), r"seed6\.csv is incomplete .*: it is not a readable CSV \(ParserError: "),
+    ("evaluation-every-episode-twice", evaluation(7), r"seed7\.csv holds 6 episodes per action mode and inference, but "
+     r"the profile plays 3 \(eval_episodes\): episodes were added twice or the file is of another profile; evaluate the "
+     r"run again \(`python -m paper_lib\.pipeline\.run_results evaluate HalfCheetah-v5 baseline 7`\)"),
+    ("dataset-relabelled-ood-states", lambda ws: partial(StateDataset.load, ws.root / "relabelled.npz"),
+     r"relabelled\.npz: 2 of 4 states of source 'id' point at an OOD configuration \(e\.g\. state 2: config_index 0\); "
+     r"ID states are collected in the unmodified env \(config_index -1\), so these are relabelled OOD states: collect "
+     r"the states again \(`make recollect`\) or correct the labels"),
+    # score files cut off, of another run, or without their record (issue 71)
+    ("scores-metrics-cut-in-half", scores("metrics_half"), r"metrics_half/results/paper/scores/HalfCheetah-v5/baseline/"
+     r"seed0/metrics\.csv is incomplete \(cut off\?\): its last line ends mid-row; score the run again \(`python -m "
+     r"paper_lib\.pipeline\.run_results score HalfCheetah-v5 baseline 0`\)"),
+    ("scores-metrics-cut-at-a-row", scores("metrics_at_a_row"), r"seed0/replicates\.npy holds \d+ rows but the "
+     r"metrics\.csv beside it has \d+ \(one row of replicates per metric\): one of them is cut off .*; score the run again"),
+    ("scores-replicates-cut", scores("replicates_half", reader=read_all_replicates), r"seed0/replicates\.npy is "
+     r"incomplete \(cut off\?\): it is not a readable \.npy .*; score the run again \(`python -m "
+     r"paper_lib\.pipeline\.run_results score HalfCheetah-v5 baseline 0`\)"),
+    ("scores-file-of-another-run", scores("roc_of_another_run", "roc"), r"seed0/roc\.csv belongs to HalfCheetah-v5 "
+     r"masksembles seed 0, not to HalfCheetah-v5 baseline seed 0 whose path it sits at: a file of another run is never "
+     r"read as this one's; score the run again"),
+    ("scores-without-provenance", scores("no_provenance", "over_time"), r"the scores .*no_provenance/results/paper/"
+     r"scores/HalfCheetah-v5/baseline/seed0 have no provenance\.json: .*record it from the current files, which the "
+     r"command checks first \(`python -m paper_lib\.pipeline\.run_results provenance HalfCheetah-v5 baseline 0`\)"),
     # notebook 8's guard budgets (the active profile's and every other's)
     ("guard-budget-negative", guard(budget_entry("paper", "fit_episodes", -3)),
      r"params_\d+\.yaml: guard\.budgets\.paper\.fit_episodes must be an integer >= 1, got -3"),
@@ -362,6 +482,36 @@ API_CASES: list[tuple[str, Callable, str]] = [
      r"guard\.budgets\.tiny\.fit_episodes must be an integer >= 1, got -1"),
     ("guard-budget-not-mapping", guard(budget_entry("paper", "", [10, 100])),
      r"guard\.budgets\.paper must be a mapping \{fit_episodes: \.\.\., .*\}, got \[10, 100\]"),
+    # issue 71: doors that were open
+    ("make-agent-env-of-another-id", given_env("Acrobot-v1"),
+     r"make_agent: the given env runs Acrobot-v1 but env_id is 'CartPole-v1'; pass an env of CartPole-v1 "
+     r"\(make_env\('CartPole-v1', n_envs, seed\)\) or env_id='Acrobot-v1'"),
+    ("guard-of-another-model", guard_of_another_seed,
+     r"the guard was calibrated for a PPO ensemble CartPole-v1, seed 0 \(weights [0-9a-f]{12}\), but the model given "
+     r"is a PPO ensemble CartPole-v1, seed 1 \(weights [0-9a-f]{12}\); .*Pass the model the guard was calibrated with, "
+     r"or calibrate a new guard for this model"),
+    ("guard-calibrated-on-inf", calibrated_on(np.r_[np.arange(19.0), np.inf]),
+     r"calibration scores hold NaN or inf \(1 of 20; an inf threshold never alarms, -inf always does\); drop those "
+     r"calibration states or fix the score function"),
+    ("guard-calibrated-on-minus-inf", calibrated_on(np.r_[np.arange(19.0), -np.inf]), r"hold NaN or inf \(1 of 20"),
+    ("checkpoint-normalizer-of-another-env", checkpoint("norm_other_env"),
+     r"norm_other_env/vecnormalize\.pkl was saved for CartPole-v0 but .*norm_other_env/config\.json says CartPole-v1: "
+     r"another run's normalizer was put here; retrain it"),
+    ("vecnormalize-saved-for-other-env", own_agent(lambda ws: ws.root / "agents" / "walker_saved_vecnormalize.pkl"),
+     r"walker_saved_vecnormalize\.pkl was saved for Walker2d-v5, but the agent is evaluated on HalfCheetah-v5: give "
+     r"the VecNormalize the agent was trained with on HalfCheetah-v5"),
+    ("uncertainty-seed-fraction", scored(cartpole_states, seed=1.5),
+     r"seed must be None or an integer >= 0 \(the MC masks' seed\), got 1\.5; pass e\.g\. seed=0"),
+    ("uncertainty-seed-text", scored(cartpole_states, seed="7"), r"seed must be None or an integer >= 0 .*got '7'"),
+    ("uncertainty-frames-scaled", scored(lambda: frames().astype(np.float32) / 255, atari=True),
+     r"observations are float32 but this policy's observation space holds uint8 frames in \[0, 255\]; pass the raw "
+     r"frames \(the policy scales them itself\)"),
+    ("uncertainty-frames-negative", scored(lambda: frames().astype(np.int64) - 128, atari=True),
+     r"observations hold values in \[-128, 127\] but this policy's observation space holds uint8 frames in "
+     r"\[0, 255\]; pass the raw frames as the env returns them"),
+    ("uncertainty-not-a-policy", lambda ws: partial(uncertainty, "model.zip", cartpole_states()),
+     r"uncertainty takes an SB3 actor-critic model or its policy \(model\.policy\), got str; pass e\.g\. "
+     r"make_agent\(\.\.\.\) or PPO\.load\(path\)"),
 ]
 
 
@@ -439,6 +589,11 @@ CLI_CASES: list[tuple[str, str, list[str], str, str]] = [
     ("evaluate-agent-other-vecnormalize", "paper_lib.pipeline.evaluate_agent",
      ["agent.zip", "HalfCheetah-v5", "--vecnormalize", "swimmer.pkl"], "good",
      r"swimmer\.pkl normalizes observations of shape \(8,\), but HalfCheetah-v5's have shape \(17,\)"),
+    ("evaluate-agent-saved-vecnormalize-of-another-env", "paper_lib.pipeline.evaluate_agent",
+     ["agent.zip", "HalfCheetah-v5", "--vecnormalize", "walker.pkl"], "good",
+     r"walker\.pkl was saved for Walker2d-v5, but the agent is evaluated on HalfCheetah-v5"),
+    ("evaluate-agent-out-empty", "paper_lib.pipeline.evaluate_agent", ["agent.zip", "HalfCheetah-v5", "--out", ""],
+     "good", r"--out folder is empty \(''\), which would write into the current folder; give a folder path"),
 ]
 
 
@@ -460,10 +615,11 @@ def _cli_workspace(root: Path) -> dict[str, Path]:
         (folders[name] / "params.yaml").write_text(variant)
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from paper_lib.agents.envs import make_env
+    from paper_lib.agents.envs import make_env, save_normalizer
 
     make_agent("ppo", "baseline", "HalfCheetah-v5", 0, overrides=TINY).save(folders["good"] / "agent.zip")
     VecNormalize(make_env("Swimmer-v5", 1, 0)).save(str(folders["good"] / "swimmer.pkl"))
+    save_normalizer(VecNormalize(make_env("Walker2d-v5", 1, 0)), folders["good"] / "walker.pkl", "Walker2d-v5")
     return folders
 
 

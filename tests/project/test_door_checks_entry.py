@@ -573,11 +573,13 @@ def test_evaluate_agent_puts_back_a_group_a_kill_left_mixed_before_collecting(tm
 
 def test_evaluate_agent_says_how_to_finish_when_the_old_results_cannot_be_put_back(tmp_path, plain_zip, monkeypatch):
     """The moves fail part-way and so does putting the old files back: the error says so (not 'as it was') and how
-    to finish, and the next run puts the old group back before it writes."""
+    to finish, and the next run puts the old group back before it writes. (A folder of the user's files too: one of
+    evaluate_agent's files only is swapped whole, with no moves to fail part-way.)"""
     from paper_lib.pipeline import evaluate_agent as module
 
     out = tmp_path / "out"
     module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    (out / "notes.txt").write_text("the user's")
     first = {name: (out / name).read_bytes() for name in module.OUTPUT_FILES}
     _fail_moves_after_the_first(monkeypatch, fail_put_back=True)
     expected = r"^moving the files into .*out failed part-way .* putting the old ones back failed too .* run " \
@@ -588,3 +590,185 @@ def test_evaluate_agent_says_how_to_finish_when_the_old_results_cannot_be_put_ba
     monkeypatch.undo()
     assert io.recover_files(out)
     assert {name: (out / name).read_bytes() for name in module.OUTPUT_FILES} == first
+
+
+# ----------------------------------------------------------------------------- 9. the README paste and the site (issue 71)
+
+def _readme_inputs(to: Path) -> str:
+    """The committed README, docs and the results readme_results.py pastes from, in `to`; the active profile."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import readme_results
+
+    profile = readme_results.active_profile()
+    shutil.copy(REPO / "README.md", to / "README.md")
+    shutil.copytree(REPO / "docs", to / "docs")
+    for part in (f"results/{profile}/tables", "results/bench", "results/recipe_probes"):
+        shutil.copytree(REPO / part, to / part)
+    shutil.copy(REPO / f"results/{profile}/runs.md", to / f"results/{profile}/runs.md")
+    return profile
+
+
+@pytest.mark.parametrize("damage,match", [
+    (lambda p: p.write_text(p.read_text()[: len(p.read_text()) // 2]),
+     r"rewards\.md is incomplete \(cut off\?\): its table has a row cut short or no header; run the stage that "
+     r"writes it again \(`make reproduce`, or `git checkout results/\w+/tables/rewards\.md` for the committed copy\): "
+     r"nothing was written"),
+    (lambda p: p.write_text("".join(p.read_text().splitlines(keepends=True)[:5])),  # cut at a row's end
+     r"rewards\.md is incomplete \(cut off\?\): its table has 1 rows but rewards\.csv has 18"),
+    (lambda p: p.with_suffix(".csv").write_text(p.with_suffix(".csv").read_text()[:-30]),
+     r"rewards\.csv is incomplete \(cut off\?\): its last line ends mid-row"),
+    (lambda p: p.unlink(), r"rewards\.md is missing; run the stage that writes it again"),
+])
+def test_readme_results_refuses_a_truncated_or_missing_table_and_writes_nothing(tmp_path, damage, match):
+    profile = _readme_inputs(tmp_path)
+    damage(tmp_path / "results" / profile / "tables" / "rewards.md")
+    before = snapshot(tmp_path)
+    run = subprocess.run([sys.executable, str(REPO / "scripts" / "readme_results.py"), profile], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0 and "Traceback" not in run.stderr, run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and re.search(match, run.stderr), run.stderr
+    assert snapshot(tmp_path) == before
+
+
+def _site_workspace(root: Path) -> tuple[object, str, Path]:
+    """The site's inputs (dvc.yaml and the executed notebooks of the active profile) in `root`."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import build_site
+
+    profile = build_site.active_profile()
+    shutil.copy(REPO / "dvc.yaml", root / "dvc.yaml")
+    folder = root / "results" / profile / "notebooks"
+    shutil.copytree(REPO / "results" / profile / "notebooks", folder)
+    return build_site, profile, folder
+
+
+def test_the_site_refuses_a_missing_notebook_naming_its_stage(tmp_path):
+    build_site, profile, folder = _site_workspace(tmp_path)
+    (folder / "03_ood_detection.ipynb").unlink()
+    before = snapshot(tmp_path)
+    with pytest.raises(ValueError, match=rf"results/{profile}/notebooks/03_ood_detection\.ipynb is missing \(the DVC "
+                                         r"stage ood writes it\): run `dvc repro ood` or restore the committed copy "
+                                         rf"with `git checkout results/{profile}/notebooks/03_ood_detection\.ipynb`; "
+                                         r"the site was not built"):
+        build_site.notebook_pages(profile, tmp_path)
+    assert snapshot(tmp_path) == before
+
+
+def test_the_site_refuses_a_truncated_notebook_naming_it(tmp_path):
+    build_site, profile, folder = _site_workspace(tmp_path)
+    page = folder / "00_quickstart.ipynb"
+    page.write_bytes(page.read_bytes()[: page.stat().st_size // 2])
+    before = snapshot(tmp_path)
+    with pytest.raises(ValueError, match=rf"results/{profile}/notebooks/00_quickstart\.ipynb is not a readable "
+                                         r"notebook \(cut off\?\) .*run `dvc repro quickstart` or restore the committed "
+                                         r"copy .*the site was not built"):
+        build_site.notebook_pages(profile, tmp_path)
+    assert snapshot(tmp_path) == before
+
+
+def test_a_page_that_left_the_sources_leaves_the_built_site(tmp_path):
+    """Sphinx builds only the pages it has: the previous build's copy of a removed page must go with its source."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    import build_site
+
+    source, site = tmp_path / "src", tmp_path / "site"
+    (source / "notebooks").mkdir(parents=True)
+    (site / "notebooks").mkdir(parents=True)
+    for folder, name in ((source, "notebooks/99_gone.ipynb"), (site, "notebooks/99_gone.html"),
+                         (site, "notebooks/03_ood_detection.html")):
+        (folder / name).write_text("old")
+    build_site.assemble(source, REPO, site)
+    assert not (source / "notebooks" / "99_gone.ipynb").exists() and not (site / "notebooks" / "99_gone.html").exists()
+    assert (site / "notebooks" / "03_ood_detection.html").read_text() == "old"  # a page still there is Sphinx's to rebuild
+
+
+# ----------------------------------------------------------------------------- 10. evaluate_agent's --out as one unit (issue 71)
+
+def test_evaluate_agent_swaps_a_folder_of_its_own_files_in_whole(tmp_path, plain_zip, monkeypatch):
+    """A folder holding only the last run's files is replaced as one folder (one atomic exchange, no file moved in
+    one by one), so a kill at any instant leaves the old files or the new ones, never a mix."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    first = {name: (out / name).read_bytes() for name in module.OUTPUT_FILES}
+    inode = out.stat().st_ino
+
+    def no_group_move(*args, **kwargs):
+        raise AssertionError("the files were moved in one by one")
+
+    monkeypatch.setattr(module, "atomic_files", no_group_move)
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=1, out_dir=out)
+    assert out.stat().st_ino != inode, "the folder was not swapped in whole"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"], "a temporary folder was left beside it"
+    assert sorted(p.name for p in out.iterdir()) == sorted(module.OUTPUT_FILES)
+    assert (out / "ood_metrics.csv").read_bytes() != first["ood_metrics.csv"]
+
+
+def test_evaluate_agent_keeps_the_users_files_beside_its_own(tmp_path, plain_zip):
+    """A folder that also holds the user's files is never swapped (that would remove them): the group move, whose
+    journal puts the old files back after a kill, writes the results beside them."""
+    from paper_lib.pipeline import evaluate_agent as module
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    inode = out.stat().st_ino
+    module.evaluate_agent(plain_zip, "HalfCheetah-v5", budget=module.Budget(**TINY_BUDGET), seed=0, out_dir=out)
+    assert out.stat().st_ino == inode and (out / "notes.txt").read_text() == "the user's"
+    assert sorted(p.name for p in out.iterdir()) == sorted([*module.OUTPUT_FILES, "notes.txt"])
+    assert not module.swapped_whole(out) and module.swapped_whole(tmp_path / "new")
+
+
+# ----------------------------------------------------------------------------- 11. one writer per run output (issue 71)
+
+def _stage_tree(root: Path) -> object:
+    """A params.yaml copy whose results live under `root`, a CartPole baseline and masksembles checkpoint each (built,
+    not trained), and the baseline's dataset: what the per-run stages read before they take their lock."""
+    import dataclasses
+    import json
+
+    from paper_lib import make_agent
+    from paper_lib.ood.datasets import StateDataset
+    from paper_lib.pipeline.config import load_run_config
+
+    cfg = dataclasses.replace(load_run_config(params_copy(root)), root=root)
+    tiny = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
+    for method in ("baseline", "masksembles"):
+        folder = cfg.checkpoint_dir("CartPole-v1", method, 0)
+        folder.mkdir(parents=True)
+        model = make_agent("ppo", method, "CartPole-v1", 0, overrides=tiny)
+        model.save(folder / "model.zip")
+        (folder / "config.json").write_text(json.dumps(model.paper_lib_config))
+    StateDataset(states=np.zeros((4, 4), dtype=np.float32), labels=[0, 0, 1, 1], source=["id", "id", "noise", "noise"],
+                 config_index=[-1] * 4, episode=[0] * 4, step=[0, 1, 2, 3],
+                 metadata={"model": {"env_id": "CartPole-v1", "method": "baseline", "seed": 0}}
+                 ).save(cfg.dataset_path("CartPole-v1", "baseline", 0))
+    return cfg
+
+
+@pytest.mark.parametrize("stage,doing", [("evaluate", "evaluating"), ("collect", "collecting"),
+                                         ("score", "scoring"), ("common_score", "scoring the common states")])
+def test_a_second_writer_of_a_runs_output_stops_at_once_naming_it(tmp_path, stage, doing):
+    """Two processes on one run's stage: the second stops before any work (the lock is held here, as the first
+    process would), naming the output and the lock; nothing on disk changes."""
+    from paper_lib.pipeline import common_states, run_results, stages
+    from paper_lib.agents.training import stage_lock
+    from paper_lib.pipeline.run_results import evaluation_path, scores_dir
+
+    cfg = _stage_tree(tmp_path)
+    method = "masksembles" if stage == "common_score" else "baseline"
+    out, call = {
+        "evaluate": (evaluation_path(cfg, "CartPole-v1", method, 0), run_results.evaluate_run),
+        "collect": (cfg.dataset_path("CartPole-v1", method, 0), stages.collect_run),
+        "score": (scores_dir(cfg, "CartPole-v1", method, 0), run_results.score_run_files),
+        "common_score": (common_states.common_scores_dir(cfg, "CartPole-v1", method, 0), common_states.score_common_files),
+    }[stage]
+    with stage_lock(out, "the first process's stage") as lock:
+        before = snapshot(tmp_path)
+        with pytest.raises(DestinationError, match=rf"^another process is {doing} into {re.escape(str(out))} \(it holds "
+                                                   rf"{re.escape(str(lock))}\); wait for it to finish: each run's stage "
+                                                   r"runs in one process at a time \(nothing was changed\)$"):
+            call(cfg, "CartPole-v1", method, 0)
+        assert snapshot(tmp_path) == before
+    assert not lock.exists()  # the holder removes its lock file when it lets go

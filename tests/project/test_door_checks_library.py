@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import json
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import torch as th
 from stable_baselines3 import DQN, PPO
 from stable_baselines3.common.env_util import make_vec_env
 
-from paper_lib import make_agent, make_env, member_outputs, uncertainty
+from paper_lib import make_agent, make_env, member_outputs, paper_hyperparameters, uncertainty
 from paper_lib.agents.checkpoints import load_checkpoint
 from paper_lib.agents.training import train_run
 from paper_lib.methods.groups import MemberGroupVecEnv, tag_observation
@@ -209,3 +210,70 @@ def test_auto_and_cpu_keep_working():
     assert make_agent("ppo", "ensemble", "CartPole-v1", 0, overrides=TINY, device="cpu").device.type == "cpu"
     expected = "cuda" if th.cuda.is_available() else "cpu"
     assert make_agent("ppo", "ensemble", "CartPole-v1", 0, overrides=TINY, device="auto").device.type == expected
+
+
+# --- 9. issue 71: the doors that were open, their legitimate uses ------------------------------------
+
+def test_uncertainty_takes_the_model_as_its_policy(member_agent, states):
+    """`uncertainty(model, obs)` means `model.policy`: the same scores, not {} or an AttributeError."""
+    by_model, by_policy = (uncertainty(m, states, seed=3) for m in (member_agent, member_agent.policy))
+    assert by_model.keys() == by_policy.keys() and by_model
+    for name in by_model:
+        np.testing.assert_array_equal(by_model[name], by_policy[name])
+    assert member_outputs(member_agent, states, seed=np.int64(3)).values.shape == (4, 3)
+
+
+def test_raw_atari_frames_are_scored_and_scaled_ones_are_refused():
+    model = make_agent("ppo", "baseline", "SeaquestNoFrameskip-v4", 0, n_envs=2, overrides=TINY)
+    frames = np.random.default_rng(0).integers(0, 256, (2, 84, 84, 4), dtype=np.uint8)
+    assert uncertainty(model, frames)["entropy"].shape == (2,)
+    assert uncertainty(model, frames.astype(np.int64))["entropy"].shape == (2,)  # any integer dtype in range
+    with pytest.raises(ValueError, match=r"observations are float64 but .* uint8 frames in \[0, 255\]"):
+        uncertainty(model, frames / 255.0)
+
+
+def test_make_agent_takes_an_env_of_its_id_and_refuses_another(states):
+    make_agent("ppo", "baseline", "CartPole-v1", 0, n_envs=4, overrides=TINY, env=make_env("CartPole-v1", 4, 0))
+    with pytest.raises(ValueError, match=r"the given env runs Acrobot-v1 but env_id is 'CartPole-v1'"):
+        make_agent("ppo", "baseline", "CartPole-v1", 0, n_envs=4, overrides=TINY, env=make_env("Acrobot-v1", 4, 0))
+
+
+def test_a_guard_goes_with_a_copy_of_its_model_and_with_a_plain_predictor():
+    from paper_lib.guard import CallableScore, Guard, GuardedPolicy
+
+    model = make_agent("ppo", "baseline", "CartPole-v1", 0, overrides=TINY)
+    guard = Guard.from_scores(model, CallableScore(lambda s: s[:, 0], "x"), np.arange(20.0), 0.1)
+    GuardedPolicy(copy.deepcopy(model), guard, fallback=None)  # the same weights: the guard's calibration holds
+
+    class Predictor:  # no weights to compare: the guard scores with its own model
+        action_space, observation_space = model.action_space, model.observation_space
+
+        def predict(self, obs, **kwargs):
+            return np.zeros(len(obs), dtype=np.int64), None
+
+    GuardedPolicy(Predictor(), guard, fallback=None)
+
+
+def test_saved_normalizers_record_their_env_and_old_ones_are_accepted_with_a_warning(tmp_path):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from paper_lib.agents.envs import normalizer_env_id, save_normalizer
+    from paper_lib.pipeline.evaluate_agent import load_vecnormalize
+
+    save_normalizer(VecNormalize(make_env("HalfCheetah-v5", 1, 0)), tmp_path / "new.pkl", "HalfCheetah-v5")
+    VecNormalize(make_env("HalfCheetah-v5", 1, 0)).save(str(tmp_path / "old.pkl"))  # before ids were recorded
+    assert normalizer_env_id(load_vecnormalize(tmp_path / "new.pkl", "HalfCheetah-v5", 0)) == "HalfCheetah-v5"
+    with pytest.warns(UserWarning, match=r"old\.pkl records no env id .* a normalizer of another env with "
+                                         r"observations of the same shape would be applied without a word"):
+        load_vecnormalize(tmp_path / "old.pkl", "HalfCheetah-v5", 0)
+
+
+def test_training_records_the_env_of_its_normalizer(tmp_path):
+    from paper_lib.agents.envs import normalizer_env_id
+
+    hp = {**paper_hyperparameters("CartPole-v1"), "normalize_obs": True}
+    out = train_run("CartPole-v1", "baseline", 0, tmp_path / "ckpt", total_timesteps=64,
+                    agent_kwargs={"overrides": TINY, "n_envs": 4, "hyperparameters": hp}, resume=False)
+    ckpt = load_checkpoint(out, "CartPole-v1", "baseline", 0)
+    with open(ckpt.vecnormalize_path, "rb") as f:
+        assert normalizer_env_id(pickle.load(f)) == "CartPole-v1"

@@ -7,11 +7,13 @@ rests on.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from scipy.stats import norm
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -168,19 +170,33 @@ needs_cpu = pytest.mark.skipif(not (CPU / "scores").is_dir() or not (CPU / "eval
 
 
 @pytest.fixture(scope="module")
-def cpu_cfg():
+def cpu_cfg(tmp_path_factory):
+    """The committed cpu results, their score folders given the provenance records they were committed without
+    (the readers refuse scores without one, issue 71): recorded from the committed datasets and checkpoints in a copy."""
+    import dataclasses
     from types import SimpleNamespace
 
+    from paper_lib.pipeline.config import load_run_config
+    from paper_lib.pipeline.run_results import record_provenance
+
+    root = tmp_path_factory.mktemp("cpu")
+    for part in ("checkpoints", "datasets", "evaluations", "scores"):
+        shutil.copytree(CPU / part, root / "results" / "cpu" / part)
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    params["run"] = {"profile": "cpu", **params["profiles"]["cpu"]}
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    cfg = dataclasses.replace(load_run_config(root / "params.yaml"), root=root)
     runs = [(env, method, 0) for env in ("HalfCheetah-v5", "Swimmer-v5")
             for method in ("baseline", "masksembles", "mc_dropout", "mc_dropconnect", "ensemble")]
-    return SimpleNamespace(results=CPU, runs=runs)
+    record_provenance(cfg, runs)
+    return SimpleNamespace(cfg=cfg, results=cfg.results, runs=runs)
 
 
 @needs_cpu
 def test_committed_rewards_pair_combined_inference_with_the_baseline(cpu_cfg):
     from paper_lib.pipeline.run_results import read_evaluations
 
-    episodes = read_evaluations(cpu_cfg, cpu_cfg.runs)
+    episodes = read_evaluations(cpu_cfg.cfg, cpu_cfg.runs)
     long = report.reward_vs_baseline(episodes, [m for _, m, _ in cpu_cfg.runs[:5]], n_boot=300)
     assert len(long) == 2 * 4 * 2 * 2  # envs x member methods x inferences x action modes
     assert set(long.loc[long.inference == "combined", "pairing"]) == {"paired"}
@@ -199,7 +215,7 @@ def test_committed_replicates_of_two_measures_share_resamples(cpu_cfg):
     move together over the shared cluster resamples (5 OOD configurations)."""
     from paper_lib.pipeline.run_results import read_replicates
 
-    reps = read_replicates(cpu_cfg, ("HalfCheetah-v5", "baseline", 0))
+    reps = read_replicates(cpu_cfg.cfg, ("HalfCheetah-v5", "baseline", 0))
     a, b = reps[("perturbed", "knn_features")], reps[("perturbed", "mahalanobis_features")]
     assert abs(np.median(a) - np.median(b)) < 0.01 and np.std(a) > 0.1  # alike, and wide: resampling matters
     assert np.corrcoef(a, b)[0, 1] > 0.8
@@ -210,8 +226,8 @@ def test_committed_replicates_of_two_measures_share_resamples(cpu_cfg):
 def test_committed_pooled_auroc_with_one_seed_is_each_runs_own(cpu_cfg):
     from paper_lib.pipeline.run_results import read_all_replicates, read_scores
 
-    metrics = read_scores(cpu_cfg, cpu_cfg.runs, "metrics")
-    replicates = read_all_replicates(cpu_cfg, cpu_cfg.runs)
+    metrics = read_scores(cpu_cfg.cfg, cpu_cfg.runs, "metrics")
+    replicates = read_all_replicates(cpu_cfg.cfg, cpu_cfg.runs)
     pooled = report.pooled_auroc(metrics, replicates, n_boot=200)
     merged = pooled.merge(metrics, on=["env", "method", "ood_set", "measure"], suffixes=("", "_run"))
     assert len(merged) == len(metrics) and (pooled.n_seeds == 1).all() and pooled.auroc_seed_std.isna().all()
