@@ -9,10 +9,13 @@ written into docs/ or results/), laid out as the repository is (README.md, docs/
 docs' links between each other, to the README and to the notebooks resolve on the site as they do on disk (a link
 to a committed executed notebook goes to its page; one to any other repository file names the path):
 
-- the home page: the README's headline table first, then one line per executed notebook (the paper's tables and
-  figures with their reading), each naming its notebook and the DVC stage that made it;
+- the home page answers first: the claims x envs matrix of verdicts (from the committed claims table, each cell
+  linking to its evidence on the claims page), the headline figure, the reading, one line per committed table
+  (with its CSV), then one line per executed notebook naming its notebook and DVC stage, then how to cite;
 - one page per executed notebook, headed by where it comes from (notebook, committed copy, DVC stage, read
-  from dvc.yaml: never typed by hand);
+  from dvc.yaml: never typed by hand); code hidden behind a toggle; each figure its notebook's source declares
+  (cell metadata `figures`) numbered, captioned, with alt text and its PNG; each committed table with its CSV;
+- every page's foot names the commit it was built from;
 - docs/results.md (every generated table), docs/deviations.md, docs/study.md and the rest of the manual.
 
 Files in `build/site-src/` are rewritten only when their content changes, so a second build re-reads only what
@@ -66,6 +69,8 @@ html_theme_options = {{"home_page_in_toc": True, "show_navbar_depth": 1, "use_do
                       # the home page's verdict matrix takes the whole width: no "Contents" column beside it
                       "secondary_sidebar_items": {{"**": ["page-toc"], "index": []}}}}
 html_static_path = ["_static"]
+html_favicon = "_static/favicon.svg"  # without one the browser asks for /favicon.ico, a 404 in the console
+html_context = {{"default_mode": "light"}}  # the theme's mode switch logs an error on a first visit without one
 html_css_files = ["results.css"]
 html_copy_source = False  # the sources are in the repository; copying multi-MB notebooks again is waste
 html_show_sourcelink = False
@@ -83,19 +88,27 @@ RESULTS_CSS = """.bd-page-width { max-width: 120rem; }
 .bd-article table { display: block; max-width: 100%; overflow-x: auto; }
 .bd-article table td, .bd-article table th { white-space: normal; overflow-wrap: break-word; vertical-align: top; }
 .bd-article table td.text-right, .bd-article table.dataframe td { white-space: nowrap; }
-.bd-article code, .bd-article pre { overflow-wrap: anywhere; white-space: pre-wrap; }
+.bd-article code.literal, .bd-article code.literal span.pre { white-space: normal; overflow-wrap: anywhere; }
+.bd-article pre { overflow-x: auto; max-width: 100%; }
+.bd-article h1, .bd-article h2, .bd-article h3, .bd-article figcaption { overflow-wrap: anywhere; }
 .bd-article img { max-width: 100%; height: auto; }
 .bd-article figure { margin: 1rem 0; }
 .bd-article figcaption { font-size: 0.9rem; text-align: left; }
-table.verdicts { font-size: 0.8rem; border-collapse: collapse; line-height: 1.25; }
+table.verdicts { font-size: 0.75rem; border-collapse: collapse; line-height: 1.25; }
 table.verdicts th, table.verdicts td { padding: 0.15rem 0.25rem; text-align: center; overflow-wrap: normal; border: 1px solid #fff; }
-table.verdicts th.claim { text-align: left; min-width: 11rem; max-width: 18rem; font-weight: normal; }
+table.verdicts th.claim { text-align: left; min-width: 10rem; max-width: 16rem; font-weight: normal; }
+table.verdicts .prov { display: block; font-size: 0.65rem; color: #444; }
 table.verdicts td a { display: block; color: inherit; text-decoration: none; }
 .v-holds { background: #b7e4b0; } .v-does-not-hold { background: #f4b6b0; } .v-inconclusive { background: #fde9a9; }
 .v-undecidable { background: #d9c8ef; } .v-not-testable { background: #dddddd; } .v-none { background: #ffffff; color: #999; }
 .v-provisional { background-image: repeating-linear-gradient(135deg, transparent 0 6px, rgba(255,255,255,.55) 6px 9px); }
 .site-footnote { font-size: 0.85rem; color: #555; }
 """
+#: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
+FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16"><rect width="16" height="16" rx="3" '
+           'fill="#b7e4b0"/></svg>\n')
+
+
 @dataclass(frozen=True)
 class NotebookPage:
     """One executed notebook on the site, with where it comes from."""
@@ -386,7 +399,7 @@ def verdict_matrix(claims) -> str:
                 continue
             kind = verdict_kind(row.verdict)
             provisional = " v-provisional" if "provisional" in row.verdict else ""
-            label = escape(kind) + ("<br><small>provisional</small>" if provisional else "")
+            label = escape(kind) + ('<span class="prov">provisional</span>' if provisional else "")
             tds.append(f'<td class="v-{kind.replace(" ", "-")}{provisional}" title="{escape(row.verdict)}">'
                        f'<a href="{CLAIMS_DOC}.html#{claim_anchor(index, env)}">{label}</a></td>')
         rows.append(f'<tr><th class="claim">{escape(claim)}</th>{"".join(tds)}</tr>')
@@ -595,6 +608,7 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
         "conf.py": CONF_PY.format(project="paper_lib", title="Uncertainty estimation in PPO, reproduced",
                                   footer=footer(root)),
         "_static/results.css": RESULTS_CSS,
+        "_static/favicon.svg": FAVICON,
         **{rel: site_links(text, rel, sources, profile, root) for rel, text in markdown.items()},
     }
     shown: dict[str, str] = {}  # committed CSV -> the page that shows its table
