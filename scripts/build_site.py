@@ -66,8 +66,8 @@ exclude_patterns = ["_build", "**/.ipynb_checkpoints"]
 html_theme = "sphinx_book_theme"
 html_theme_options = {{"home_page_in_toc": True, "show_navbar_depth": 1, "use_download_button": False,
                       "show_toc_level": 2, "extra_footer": {footer!r},
-                      # the home page's verdict matrix takes the whole width: no "Contents" column beside it
-                      "secondary_sidebar_items": {{"**": ["page-toc"], "index": []}}}}
+                      # the verdict matrix and the figures take the whole width: no "Contents" column beside them
+                      "secondary_sidebar_items": {secondary!r}}}
 html_static_path = ["_static"]
 html_favicon = "_static/favicon.svg"  # without one the browser asks for /favicon.ico, a 404 in the console
 html_context = {{"default_mode": "light"}}  # the theme's mode switch logs an error on a first visit without one
@@ -238,12 +238,26 @@ def figure_number(page: NotebookPage, index: int) -> str:
     return f"Figure {int(number.group()) if number else page.name}.{index}"
 
 
+#: Figures are drawn at 150 dpi: shown at half their pixel width, a 10 pt title is about 10 px high (readable) and
+#: a small figure is not blown up to the column's width; a wide one is capped by the column (CSS max-width).
+DISPLAY_SCALE = 0.5
+
+
+def display_width(png: bytes) -> int:
+    """The width in CSS px to show a PNG at: DISPLAY_SCALE of its pixel width (read from its IHDR header)."""
+    import struct
+
+    if png[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ValueError("not a PNG")
+    return round(struct.unpack(">I", png[16:20])[0] * DISPLAY_SCALE)
+
+
 def figure_markdown(page: NotebookPage, index: int, figure: DeclaredFigure, site_path: str) -> str:
     """A MyST figure: number, caption, which paper figure it reproduces, alt text, and its PNG to download."""
     paper = f" Reproduces the paper's {figure.paper}." if figure.paper else ""
     detail = f" ({figure.file.stem})" if any(char in figure.pattern for char in "*?[") else ""
     return (f"```{{figure}} /{site_path}\n:alt: {figure.alt}{detail}\n:name: {page.docname.replace('/', '-')}-figure-{index}\n"
-            f":width: 100%\n\n**{figure_number(page, index)}.**{detail} {figure.caption}{paper} "
+            f":width: {display_width(figure.file.read_bytes())}px\n\n**{figure_number(page, index)}.**{detail} {figure.caption}{paper} "
             f"{{download}}`PNG </{site_path}>` (`{site_path.removeprefix('files/')}`)\n```\n")
 
 
@@ -251,7 +265,30 @@ def figure_markdown(page: NotebookPage, index: int, figure: DeclaredFigure, site
 FIGURE_REPR = re.compile(r"^<Figure size \d+x\d+ with \d+ Axes>$")
 #: A Markdown table cell that holds pandas' NaN (not applicable or not run yet): shown as "-".
 NAN_CELL = re.compile(r"(?<=\|)(\s*)NaN(\s*)(?=\|)")
-NAN_NOTE = "\n\n<p class=\"site-footnote\">-: no value (not applicable to that env or method, or not run yet).</p>\n"
+NAN_NOTE = "<p class=\"site-footnote\">-: no value (not applicable to that env or method, or not run yet).</p>"
+
+
+def dash_nan_tables(text: str) -> str:
+    """Markdown with every pipe table's NaN cells shown as "-", and a footnote under each table that has one.
+
+    pandas writes NaN where a cell has no value (a measure an env lacks, a run not trained yet); 60 of 420 cells
+    of the headline table read "NaN", which a reader takes for a failed computation.
+    """
+    out: list[str] = []
+    replaced = False
+    for line in text.splitlines():
+        if line.startswith("|"):
+            shown = NAN_CELL.sub(lambda m: f"{m.group(1)}-{m.group(2)}", line)
+            replaced |= shown != line
+            out.append(shown)
+            continue
+        if replaced:
+            out += ["", NAN_NOTE]
+            replaced = False
+        out.append(line)
+    if replaced:
+        out += ["", NAN_NOTE]
+    return "\n".join(out) + ("\n" if text.endswith("\n") else "")
 
 
 def table_files(profile: str, root: Path = ROOT) -> dict[str, Path]:
@@ -307,8 +344,8 @@ def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[
             elif "text/markdown" in data and "|" in data["text/markdown"]:
                 text = data["text/markdown"]
                 committed = tables.get(text.strip())
-                shown = NAN_CELL.sub(lambda m: f"{m.group(1)}-{m.group(2)}", text)
-                extra = NAN_NOTE if shown != text else ""
+                shown = dash_nan_tables(text)
+                extra = ""
                 if committed is not None and committed.with_suffix(".csv").is_file():
                     csv = committed.with_suffix(".csv")
                     site_path = "files/" + csv.relative_to(root).as_posix()
@@ -606,10 +643,10 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
     sources = {*markdown, "index.md", f"{CLAIMS_DOC}.md", *(f"{page.docname}.ipynb" for page in pages)}
     wanted: dict[str, str | bytes] = {
         "conf.py": CONF_PY.format(project="paper_lib", title="Uncertainty estimation in PPO, reproduced",
-                                  footer=footer(root)),
+                                  footer=footer(root), secondary=secondary_sidebars(pages)),
         "_static/results.css": RESULTS_CSS,
         "_static/favicon.svg": FAVICON,
-        **{rel: site_links(text, rel, sources, profile, root) for rel, text in markdown.items()},
+        **{rel: dash_nan_tables(site_links(text, rel, sources, profile, root)) for rel, text in markdown.items()},
     }
     shown: dict[str, str] = {}  # committed CSV -> the page that shows its table
     for page in pages:
@@ -635,6 +672,14 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
         elif path.is_dir() and not any(path.iterdir()):
             path.rmdir()
     return pages
+
+
+def secondary_sidebars(pages: list[NotebookPage]) -> dict[str, list[str]]:
+    """The theme's right-hand column per page: the page's contents, except beside the verdict matrix and the figures.
+
+    Named page by page: the theme refuses a page that two wildcard patterns match.
+    """
+    return {"**": ["page-toc"], "index": [], **{page.docname: [] for page in pages}}
 
 
 def commit(root: Path = ROOT) -> str:
