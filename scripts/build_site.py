@@ -268,6 +268,21 @@ NAN_CELL = re.compile(r"(?<=\|)(\s*)NaN(\s*)(?=\|)")
 NAN_NOTE = "<p class=\"site-footnote\">-: no value (not applicable to that env or method, or not run yet).</p>"
 
 
+#: A DataFrame's HTML cell holding a float printed with pandas' 6 decimals (1433.220447).
+LONG_FLOAT_CELL = re.compile(r"<td>(-?\d+\.\d{4,})</td>")
+
+
+def short_number(value: float) -> str:
+    """A float as the paper prints its numbers: whole above 100 (rewards), 2 decimals above 1, else 3 (AUROCs)."""
+    size = abs(value)
+    return f"{value:.0f}" if size >= 100 else f"{value:.2f}" if size >= 1 else f"{value:.3f}"
+
+
+def round_html_cells(html: str) -> str:
+    """A DataFrame's HTML with long floats shortened (short_number), the full value kept in the cell's title."""
+    return LONG_FLOAT_CELL.sub(lambda m: f'<td title="{m.group(1)}">{short_number(float(m.group(1)))}</td>', html)
+
+
 def dash_nan_tables(text: str) -> str:
     """Markdown with every pipe table's NaN cells shown as "-", and a footnote under each table that has one.
 
@@ -341,6 +356,8 @@ def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[
                 files[site_path] = raw
                 out = nbformat.v4.new_output("display_data", data={"text/markdown": figure_markdown(
                     page, count, figure, site_path)})
+            elif "text/html" in data and "dataframe" in data["text/html"]:
+                out = nbformat.v4.new_output("display_data", data={**data, "text/html": round_html_cells(data["text/html"])})
             elif "text/markdown" in data and "|" in data["text/markdown"]:
                 text = data["text/markdown"]
                 committed = tables.get(text.strip())

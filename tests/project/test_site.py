@@ -337,3 +337,41 @@ def test_a_figure_lost_from_an_executed_notebook_fails_the_reader_checks(built, 
     with headless_chromium() as driver:
         problems = reader_problems(driver, (index.parent / f"{page.docname}.html").as_uri(), declared)
     assert any(f"figures shown, its notebook declares {declared}" in p for p in problems), problems
+
+
+def test_every_figure_offers_its_png_and_every_committed_table_its_csv(built):
+    """A reader downloads what they see: beside each declared figure its PNG, beside each committed table its CSV."""
+    profile = project_site.active_profile()
+    committed = {path.with_suffix(".csv").name for path in project_site.table_files(profile).values()}
+    for page in built["pages"]:
+        html = (built["site"] / f"{page.docname}.html").read_text()
+        offered = re.findall(r'href="(\.\./_downloads/[^"]+)"', html)
+        for href in offered:
+            assert (built["site"] / page.docname).parent.joinpath(unquote(href)).resolve().is_file(), (page.name, href)
+        names = {unquote(href).rsplit("/", 1)[1] for href in offered}
+        for figure in project_site.declared_figures(ROOT / page.source, profile):
+            assert figure.file.name in names, f"{page.name}: no PNG offered beside {figure.file.name}"
+        outputs = [out.get("data", {}).get("text/markdown", "") for cell in nbformat.read(page.executed, as_version=4).cells
+                   if cell.cell_type == "code" for out in cell.outputs]
+        shown = {path.with_suffix(".csv").name for text, path in project_site.table_files(profile).items()
+                 if any(out.strip() == text for out in outputs)}
+        assert shown <= names, f"{page.name}: no CSV beside {sorted(shown - names)}"
+        assert shown <= committed
+
+
+def test_every_page_names_its_commit_and_the_home_page_how_to_cite(built):
+    """The commit in every page's foot; the arXiv link and both BibTeX entries on the home page; CITATION.cff, LICENSE."""
+    import subprocess
+
+    import yaml
+
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    for path in _page_urls(built["site"], ""):
+        assert f'<code class="site-commit">{head}' in (built["site"] / path).read_text(), f"{path}: no commit in its foot"
+    home = (built["site"] / "index.html").read_text()
+    text = re.sub(r"<[^>]+>", "", home)  # the BibTeX is highlighted: its words sit in spans
+    assert project_site.ARXIV in home and "@article{" in text and "@software{" in text
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] and cff["license"] == "MIT"
+    assert "Proximal Policy Optimization" in cff["preferred-citation"]["title"]
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
