@@ -85,7 +85,8 @@ suppress_warnings = ["myst.header"]  # docs/results.md's pasted tables sit under
 #: matrix's colours are defined here, once.
 RESULTS_CSS = """.bd-page-width { max-width: 120rem; }
 .bd-main .bd-content .bd-article-container { max-width: 100%; }
-.bd-article table { display: block; max-width: 100%; overflow-x: auto; }
+.bd-article table { display: block; max-width: 100%; overflow-x: auto; font-size: 0.85rem; }
+.bd-article table td, .bd-article table th { padding: 0.2rem 0.3rem; font-size: 0.8rem; }
 .bd-article table td, .bd-article table th { white-space: normal; overflow-wrap: break-word; vertical-align: top; }
 .bd-article table td.text-right, .bd-article table.dataframe td { white-space: nowrap; }
 .bd-article code.literal, .bd-article code.literal span.pre { white-space: normal; overflow-wrap: anywhere; }
@@ -95,7 +96,7 @@ RESULTS_CSS = """.bd-page-width { max-width: 120rem; }
 .bd-article figure { margin: 1rem 0; }
 .bd-article figcaption { font-size: 0.9rem; text-align: left; }
 table.verdicts { font-size: 0.75rem; border-collapse: collapse; line-height: 1.25; }
-table.verdicts th, table.verdicts td { padding: 0.15rem 0.25rem; text-align: center; overflow-wrap: normal; border: 1px solid #fff; }
+table.verdicts th, table.verdicts td { font-size: 0.75rem; padding: 0.15rem 0.25rem; text-align: center; overflow-wrap: normal; border: 1px solid #fff; }
 table.verdicts th.claim { text-align: left; min-width: 10rem; max-width: 16rem; font-weight: normal; }
 table.verdicts .prov { display: block; font-size: 0.65rem; color: #444; }
 table.verdicts td a { display: block; color: inherit; text-decoration: none; }
@@ -280,7 +281,20 @@ def short_number(value: float) -> str:
 
 def round_html_cells(html: str) -> str:
     """A DataFrame's HTML with long floats shortened (short_number), the full value kept in the cell's title."""
-    return LONG_FLOAT_CELL.sub(lambda m: f'<td title="{m.group(1)}">{short_number(float(m.group(1)))}</td>', html)
+    html = LONG_FLOAT_CELL.sub(lambda m: f'<td title="{m.group(1)}">{short_number(float(m.group(1)))}</td>', html)
+    return re.sub(r"(<th[^>]*>)([^<]*)(</th>)", lambda m: m.group(1) + breakable(m.group(2)) + m.group(3), html)
+
+
+ZWSP = "\u200b"
+
+
+def breakable(text: str) -> str:
+    """`text` (a table header, an env name) with places a line may break: before 'NoFrameskip', after '_'.
+
+    An Atari env id or a snake_case column name is one long word that would set a column's width; a break there
+    keeps the words whole ('Berzerk / NoFrameskip-v4'), never mid-word.
+    """
+    return text.replace("NoFrameskip", ZWSP + "NoFrameskip").replace("_", "_" + ZWSP)
 
 
 def dash_nan_tables(text: str) -> str:
@@ -291,12 +305,21 @@ def dash_nan_tables(text: str) -> str:
     """
     out: list[str] = []
     replaced = False
+    previous = ""
+    fenced = False
     for line in text.splitlines():
-        if line.startswith("|"):
+        if line.lstrip().startswith(("```", "~~~")):
+            fenced = not fenced
+        if line.startswith("|") and not fenced:
+            header = not previous.startswith("|")
             shown = NAN_CELL.sub(lambda m: f"{m.group(1)}-{m.group(2)}", line)
+            shown = (breakable(shown) if header and "](" not in shown
+                     else shown.replace("NoFrameskip", ZWSP + "NoFrameskip"))
+            previous = line
             replaced |= shown != line
             out.append(shown)
             continue
+        previous = line
         if replaced:
             out += ["", NAN_NOTE]
             replaced = False
@@ -692,11 +715,11 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
 
 
 def secondary_sidebars(pages: list[NotebookPage]) -> dict[str, list[str]]:
-    """The theme's right-hand column per page: the page's contents, except beside the verdict matrix and the figures.
+    """The theme's right-hand column per page: the page's contents, except where wide results need the width.
 
     Named page by page: the theme refuses a page that two wildcard patterns match.
     """
-    return {"**": ["page-toc"], "index": [], **{page.docname: [] for page in pages}}
+    return {"**": ["page-toc"], "index": [], "README": [], "docs/results": [], **{page.docname: [] for page in pages}}
 
 
 def commit(root: Path = ROOT) -> str:
