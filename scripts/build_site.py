@@ -337,6 +337,33 @@ def table_files(profile: str, root: Path = ROOT) -> dict[str, Path]:
     return {path.read_text(encoding="utf-8").strip(): path for path in sorted(folder.rglob("*.md"))}
 
 
+def table_block(text: str) -> str:
+    """The pipe table of a committed table's Markdown (its lines from the first starting with '|'), '' if none."""
+    lines = text.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.startswith("|")), None)
+    if start is None:
+        return ""
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return "\n".join(lines[start:end])
+
+
+def offer_csvs(text: str, tables: dict[str, Path], root: Path = ROOT) -> tuple[str, dict[str, bytes]]:
+    """Markdown (a docs page) with a CSV link under each pasted committed table, and the CSVs by site path.
+
+    docs/results.md and the README paste the committed tables (scripts/readme_results.py); a table is recognised
+    by its rows, exactly as committed, so a hand-written table gets no link.
+    """
+    files: dict[str, bytes] = {}
+    for committed, path in tables.items():
+        block, csv = table_block(committed), path.with_suffix(".csv")
+        if not block or not csv.is_file() or block + "\n" not in text + "\n":
+            continue
+        rel = csv.relative_to(root).as_posix()
+        files["files/" + rel] = csv.read_bytes()
+        text = (text + "\n").replace(block + "\n", f"{block}\n\n{{download}}`CSV </files/{rel}>` (`{rel}`)\n\n", 1)
+    return text, files
+
+
 def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[str, dict[str, bytes]]:
     """The executed notebook as its page shows it, and the files the page offers (PNG, CSV) by site path.
 
@@ -686,8 +713,12 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
                                   footer=footer(root), secondary=secondary_sidebars(pages)),
         "_static/results.css": RESULTS_CSS,
         "_static/favicon.svg": FAVICON,
-        **{rel: dash_nan_tables(site_links(text, rel, sources, profile, root)) for rel, text in markdown.items()},
     }
+    tables = table_files(profile, root)
+    for rel, text in markdown.items():
+        text, offered = offer_csvs(text, tables, root)
+        wanted[rel] = dash_nan_tables(site_links(text, rel, sources, profile, root))
+        wanted.update(offered)
     shown: dict[str, str] = {}  # committed CSV -> the page that shows its table
     for page in pages:
         wanted[f"{page.docname}.ipynb"], offered = page_notebook(page, profile, root)

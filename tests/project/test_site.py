@@ -375,3 +375,15 @@ def test_every_page_names_its_commit_and_the_home_page_how_to_cite(built):
     assert cff["cff-version"] and cff["license"] == "MIT"
     assert "Proximal Policy Optimization" in cff["preferred-citation"]["title"]
     assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_the_tables_pasted_into_the_docs_offer_their_csv(built):
+    """docs/results.md and the README paste committed tables: each pasted one has its CSV beside it on the site."""
+    tables = project_site.table_files(project_site.active_profile())
+    for doc in ("docs/results", "README"):
+        text = (ROOT / f"{doc}.md").read_text()
+        pasted = {path.with_suffix(".csv").name for committed, path in tables.items()
+                  if (block := project_site.table_block(committed)) and block + "\n" in text + "\n"}
+        html = (built["site"] / f"{doc}.html").read_text()
+        offered = {unquote(href).rsplit("/", 1)[1] for href in re.findall(r'href="([^"]*_downloads/[^"]+\.csv)"', html)}
+        assert pasted and pasted <= offered, f"{doc}: no CSV beside {sorted(pasted - offered)}"
