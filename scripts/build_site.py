@@ -104,6 +104,7 @@ table.verdicts td a { display: block; color: inherit; text-decoration: none; }
 .v-undecidable { background: #d9c8ef; } .v-not-testable { background: #dddddd; } .v-none { background: #ffffff; color: #999; }
 .v-provisional { background-image: repeating-linear-gradient(135deg, transparent 0 6px, rgba(255,255,255,.55) 6px 9px); }
 .site-footnote { font-size: 0.85rem; color: #555; }
+#how-to-enable-uncertainty-estimation-in-ppo-reproduced > h1 { font-size: 2rem; }
 """
 #: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
 FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16"><rect width="16" height="16" rx="3" '
@@ -597,7 +598,6 @@ def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims, 
         f"Do the paper's claims ([arXiv 2210.03649]({ARXIV})) hold on our runs? One row per claim, one column per "
         f"env, from `{claims_csv}` ({{download}}`CSV </files/{claims_csv}>`; [every cell's evidence]({CLAIMS_DOC}.md)).\n",
         verdict_matrix(claims),
-        "## Headline figure\n",
         f"```{{figure}} /files/{figure_rel}\n:alt: Performance profiles of AUROC on perturbed states: for each method,"
         f" the share of runs whose AUROC exceeds each threshold, MuJoCo and Atari apart, with bootstrap bands\n"
         f":name: headline-figure\n:width: 100%\n\n**Headline figure.** {HEADLINE_FIGURE_NOTE} "

@@ -112,7 +112,7 @@ def test_the_site_builds_offline_within_budget(built):
 def test_home_page_opens_with_the_verdicts_then_figure_reading_tables_and_pages(built):
     """The answer first: the verdict matrix, the headline figure, the reading, one line per table, then the pages."""
     home = (built["src"] / "index.md").read_text()
-    order = [home.index(mark) for mark in ('<div id="verdicts">', "## Headline figure", "## What the verdicts say",
+    order = [home.index(mark) for mark in ('<div id="verdicts">', ":name: headline-figure", "## What the verdicts say",
                                             "## Every table, in one line each", "## The paper's tables and figures")]
     assert order == sorted(order)
     claims = project_site.read_claims(project_site.active_profile())
@@ -228,6 +228,7 @@ const figures = seen ? Array.from(article.querySelectorAll('img')).filter(i => {
   return box.width > 50 && box.height > 50 && i.checkVisibility({checkOpacity: true, checkVisibilityCSS: true});
 }) : [];
 const matrix = document.querySelector('#verdicts table');
+const headline = document.querySelector('#headline-figure img');
 const box = matrix ? matrix.getBoundingClientRect() : null;
 return {
   text: seen ? article.innerText.trim().length : 0,
@@ -235,7 +236,8 @@ return {
   sideways: document.documentElement.scrollWidth - document.documentElement.clientWidth,
   figures: figures.length,
   matrix: box && {bottom: box.bottom, viewport: window.innerHeight, hidden: matrix.scrollWidth - matrix.clientWidth,
-                  cells: matrix.querySelectorAll('td a').length},
+                  cells: matrix.querySelectorAll('td a').length,
+                  figure: headline ? window.innerHeight - headline.getBoundingClientRect().top : null},
 };"""
 
 
@@ -291,7 +293,8 @@ def test_every_page_shows_a_reader_its_text_and_figures_without_sideways_scroll(
 
 
 def test_the_verdict_matrix_is_whole_in_the_first_screen(built, served, tmp_path):
-    """At 1400 x 1000 the matrix ends above the fold, shows every column without scrolling, one link per verdict."""
+    """At 1400 x 1000 the matrix ends above the fold, shows every column without scrolling, one link per verdict;
+    the headline figure begins in the same screen."""
     require_browser()
     claims = project_site.read_claims(project_site.active_profile())
     with headless_chromium(1400, 1000) as driver:
@@ -302,6 +305,8 @@ def test_the_verdict_matrix_is_whole_in_the_first_screen(built, served, tmp_path
     assert matrix["bottom"] <= matrix["viewport"], f"the matrix ends at {matrix['bottom']:.0f} px, below the first screen"
     assert matrix["hidden"] <= 0, f"{matrix['hidden']} px of the matrix are scrolled out of sight"
     assert matrix["cells"] == len(claims), f"{matrix['cells']} verdict links for {len(claims)} claim rows"
+    assert matrix["figure"] is not None and matrix["figure"] >= 150, (
+        f"the headline figure shows {matrix['figure']} px in the first screen (at least 150)")
 
 
 def test_a_blank_page_fails_the_reader_checks(built, served):
