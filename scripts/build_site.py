@@ -33,9 +33,13 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import unquote
 
 import yaml
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build"
@@ -47,8 +51,6 @@ WARNINGS_FILE = BUILD / "site-warnings.txt"
 RESULTS_PAGES = ("results",)
 DEVIATIONS_AND_STUDY = ("deviations", "study")
 MANUAL_FIRST = ("index", "methods", "ood_benchmark", "guard", "ensembles", "benchmarks", "pipeline", "layout")
-#: The README section that opens the home page (from its heading to the next `## ` heading).
-HEADLINE_HEADING = "## Headline result"
 #: A Markdown link (not an image): [label](target), the target without spaces or a title.
 MD_LINK = re.compile(r"(?<!!)\[([^\]]*)\]\(([^)\s]+)\)")
 STAGE_CMD = re.compile(r"notebook_run\s+(notebooks/\S+\.ipynb)")
@@ -436,17 +438,8 @@ def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[
     return nbformat.writes(nb), files
 
 
-def headline_section(readme: str) -> str:
-    """The README's headline section (its heading, reading and table), which opens the home page."""
-    start = readme.find(HEADLINE_HEADING)
-    if start < 0:
-        raise ValueError(f"README.md has no '{HEADLINE_HEADING}' section: the home page opens with it")
-    end = readme.find("\n## ", start + 1)
-    return readme[start:end if end > 0 else len(readme)].strip() + "\n"
-
-
-#: The verdicts of notebook 6 (paper_lib/reporting/claims.py), as the matrix colours them; the first that a verdict
-#: starts with wins ("does not hold" before "holds" is not needed: a verdict starts with its kind).
+#: The verdicts of notebook 6 (paper_lib/reporting/claims.py), as the matrix colours them; a verdict starts with
+#: its kind ('inconclusive, provisional (3 of 5 seeds)').
 VERDICT_KINDS = ("holds", "does not hold", "inconclusive", "undecidable", "not testable")
 CLAIMS_DOC = "claims"
 ARXIV = "https://arxiv.org/abs/2210.03649"
@@ -470,7 +463,7 @@ def claim_anchor(index: int, env: str) -> str:
     return f"claim-{index}-" + re.sub(r"[^a-z0-9]+", "-", env.lower()).strip("-")
 
 
-def read_claims(profile: str, root: Path = ROOT):
+def read_claims(profile: str, root: Path = ROOT) -> "pd.DataFrame":
     """The committed claims table of notebook 6 (results/<profile>/tables/paper_claims.csv) as a DataFrame."""
     import pandas as pd
     from paper_lib.pipeline.layout import Layout
@@ -482,7 +475,7 @@ def read_claims(profile: str, root: Path = ROOT):
     return pd.read_csv(path, keep_default_na=False)
 
 
-def verdict_matrix(claims) -> str:
+def verdict_matrix(claims: "pd.DataFrame") -> str:
     """The claims x envs matrix as an HTML table: one coloured cell per verdict, each a link to its evidence.
 
     Raw HTML (a MyST table cannot carry a class per cell): the colours say the verdict at a glance, the text says
@@ -515,7 +508,7 @@ def verdict_matrix(claims) -> str:
             "provisional (fewer seeds than registered). Each cell links to its evidence.</p></div>\n```\n")
 
 
-def claims_page(claims, profile: str) -> str:
+def claims_page(claims: "pd.DataFrame", profile: str) -> str:
     """claims.md: every (claim, env) verdict with its evidence, the target of the matrix's links."""
     parts = ["# The paper's claims, cell by cell\n",
              f"Every verdict of the home page's matrix with its evidence, as notebook 6 wrote them to "
@@ -527,7 +520,7 @@ def claims_page(claims, profile: str) -> str:
     return "\n".join(parts)
 
 
-def claims_reading(claims) -> str:
+def claims_reading(claims: "pd.DataFrame") -> str:
     """A few sentences per claim, counted from the claims table: where it holds, fails, or is open, and why."""
     lines = []
     for claim, cells in claims.groupby("claim", sort=False):
@@ -578,7 +571,7 @@ def toctree(caption: str, docnames: list[str]) -> str:
     return "```{toctree}\n:hidden:\n:caption: " + caption + "\n\n" + "\n".join(docnames) + "\n```\n"
 
 
-def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims, shown: dict[str, str],
+def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims: "pd.DataFrame", shown: dict[str, str],
               root: Path = ROOT) -> str:
     """index.md: the answer first (the verdict matrix, the headline figure, the reading), then every table, then the rest.
 
