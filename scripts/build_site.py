@@ -211,23 +211,34 @@ class DeclaredFigure:
     pattern: str  # the declared glob: one of several figures where it has a wildcard
 
 
-def declared_figures(source: Path, profile: str, root: Path = ROOT) -> list[DeclaredFigure]:
+def declared_figures(source: Path, profile: str, root: Path = ROOT,
+                     executed: Path | None = None) -> list[DeclaredFigure]:
     """The figures `source` (a notebook under notebooks/) declares, expanded against the committed figure files.
 
     Each code cell that draws figures says so in its metadata, `figures: [{files, caption, alt, paper}]`, `files`
     a glob under results/<profile>/figures/ (a loop over envs draws one figure per matching file). The declaration
     is read from the notebook's source, not its executed copy, so a figure missing from the executed copy (or from
-    its page) is seen as missing: the site tests compare each page with this list.
+    its page) is seen as missing: the site tests compare each page with this list. One exception, with `executed`
+    given: a cell the executed copy never ran (its code is not in it: the source gained it since the last
+    `make reproduce`) cannot have made its figure yet, and is left out until the pipeline runs it.
     """
     import json
 
     from paper_lib.pipeline.layout import Layout
 
     folder = Layout.of(root, profile).figures
+    ran = None
+    if executed is not None:
+        ran = {"".join(cell["source"]) for cell in json.loads(executed.read_text(encoding="utf-8"))["cells"]
+               if cell["cell_type"] == "code"}
     found = []
     for index, cell in enumerate(json.loads(source.read_text(encoding="utf-8"))["cells"]):
         for entry in cell.get("metadata", {}).get("figures", []):
             files = sorted(folder.glob(entry["files"]))
+            if not files and ran is not None and "".join(cell["source"]) not in ran:
+                print(f"site: {source.name} cell {index} is newer than its executed copy: its figures "
+                      f"({entry['files']}) appear after `make reproduce`", file=sys.stderr)
+                continue
             if not files:
                 raise ValueError(f"{source.name} cell {index}: declares figures {entry['files']!r}, and no committed "
                                  f"file under {folder.relative_to(root)}/ matches")
@@ -382,7 +393,7 @@ def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[
 
     nb = nbformat.read(page.executed, as_version=4)
     nb.cells = [cell for cell in nb.cells if "injected-parameters" not in cell.get("metadata", {}).get("tags", [])]
-    declared = declared_figures(root / page.source, profile, root)
+    declared = declared_figures(root / page.source, profile, root, page.executed)
     by_hash = {hashlib.sha256(figure.file.read_bytes()).hexdigest(): figure for figure in declared}
     tables = table_files(profile, root)
     files: dict[str, bytes] = {}
@@ -559,11 +570,33 @@ def tables_folder(profile: str, root: Path) -> Path:
     return Layout.of(root, profile).tables
 
 
-HEADLINE_FIGURE = "auroc_profiles.png"
-HEADLINE_FIGURE_NOTE = ("No committed figure shows AUROC per method and env with intervals yet; the nearest is "
-                        "this one, notebook 3's performance profiles of AUROC per method (MuJoCo and Atari apart, "
-                        "95% stratified-bootstrap bands). The per-env AUROC with its interval is in "
-                        "`tables/ood_metrics`.")
+#: The headline figure: notebook 3's AUROC per method and env with intervals; until the pipeline has drawn it (a
+#: checkout whose executed notebook predates it), the AUROC performance profiles, saying so.
+HEADLINE_FIGURES = (
+    ("auroc_intervals.png",
+     "AUROC of each member method's value and policy uncertainty on perturbed states, per env, with 95% intervals "
+     "(notebook 3; dashed: chance). The verdicts above read the differences between methods, not these levels.",
+     "Dot plot with error bars: AUROC of value_std and policy_std for each member method, one panel per env"),
+    ("auroc_profiles.png",
+     "No committed figure shows AUROC per method and env with intervals yet (notebook 3 draws it at the next "
+     "`make reproduce`); the nearest is this one, notebook 3's performance profiles of AUROC per method (MuJoCo "
+     "and Atari apart, 95% stratified-bootstrap bands). The per-env AUROC with its interval is in "
+     "`tables/ood_metrics`.",
+     "Performance profiles of AUROC on perturbed states: for each method, the share of runs whose AUROC exceeds "
+     "each threshold, MuJoCo and Atari apart, with bootstrap bands"),
+)
+
+
+def headline_figure(profile: str, root: Path = ROOT) -> tuple[Path, str, str]:
+    """(committed PNG, caption, alt text) of the home page's figure: the first of HEADLINE_FIGURES committed."""
+    from paper_lib.pipeline.layout import Layout
+
+    folder = Layout.of(root, profile).figures
+    for name, caption, alt in HEADLINE_FIGURES:
+        if (folder / name).is_file():
+            return folder / name, caption, alt
+    raise ValueError(f"none of {[name for name, _, _ in HEADLINE_FIGURES]} is committed in {folder.relative_to(root)}/: "
+                     "the home page shows one (`make reproduce` draws them)")
 
 
 def toctree(caption: str, docnames: list[str]) -> str:
@@ -580,7 +613,7 @@ def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims: 
     """
     from paper_lib.pipeline.layout import Layout
 
-    figure = Layout.of(root, profile).figures / HEADLINE_FIGURE
+    figure, note, alt = headline_figure(profile, root)
     figure_rel = figure.relative_to(root).as_posix()
     rows = "\n".join(f"| [{page.title}]({page.docname}.ipynb) | `{page.source}` | `{page.stage}` |" for page in pages)
     manual = [d for d in MANUAL_FIRST if d in docs] + [d for d in docs if d not in
@@ -591,9 +624,8 @@ def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims: 
         f"Do the paper's claims ([arXiv 2210.03649]({ARXIV})) hold on our runs? One row per claim, one column per "
         f"env, from `{claims_csv}` ({{download}}`CSV </files/{claims_csv}>`; [every cell's evidence]({CLAIMS_DOC}.md)).\n",
         verdict_matrix(claims),
-        f"```{{figure}} /files/{figure_rel}\n:alt: Performance profiles of AUROC on perturbed states: for each method,"
-        f" the share of runs whose AUROC exceeds each threshold, MuJoCo and Atari apart, with bootstrap bands\n"
-        f":name: headline-figure\n:width: 100%\n\n**Headline figure.** {HEADLINE_FIGURE_NOTE} "
+        f"```{{figure}} /files/{figure_rel}\n:alt: {alt}\n"
+        f":name: headline-figure\n:width: 100%\n\n**Headline figure.** {note} "
         f"{{download}}`PNG </files/{figure_rel}>` (`{figure_rel}`)\n```\n",
         "## What the verdicts say\n",
         "Counted from the claims table (one rule for every claim: holds when the 95% interval excludes failure, does "
@@ -724,7 +756,7 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT) -> list[NotebookP
     from paper_lib.pipeline.layout import Layout
 
     layout = Layout.of(root, profile)
-    for path in (layout.figures / HEADLINE_FIGURE, layout.table("paper_claims", "csv"),
+    for path in (headline_figure(profile, root)[0], layout.table("paper_claims", "csv"),
                  *(csv for csv in (p.with_suffix(".csv") for p in table_files(profile, root).values()) if csv.is_file())):
         wanted["files/" + path.relative_to(root).as_posix()] = path.read_bytes()
     for rel, text in wanted.items():

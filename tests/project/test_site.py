@@ -244,7 +244,7 @@ return {
 def expected_figures(built: dict) -> dict[str, int]:
     """{page path: the figures it must show}: each notebook page, what its source notebook declares; the home page, 1."""
     profile = project_site.active_profile()
-    counts = {f"/{page.docname}.html": len(project_site.declared_figures(ROOT / page.source, profile))
+    counts = {f"/{page.docname}.html": len(project_site.declared_figures(ROOT / page.source, profile, ROOT, page.executed))
               for page in built["pages"]}
     return {**counts, "/index.html": 1}
 
@@ -338,7 +338,7 @@ def test_a_figure_lost_from_an_executed_notebook_fails_the_reader_checks(built, 
                                              project_site.active_profile())
     (src / f"{page.docname}.ipynb").write_text(text)
     index = project_site.build(src, tmp_path / "site", tmp_path / "doctrees", tmp_path / "warnings.txt")
-    declared = len(project_site.declared_figures(ROOT / page.source, project_site.active_profile()))
+    declared = len(project_site.declared_figures(ROOT / page.source, project_site.active_profile(), ROOT, page.executed))
     with headless_chromium() as driver:
         problems = reader_problems(driver, (index.parent / f"{page.docname}.html").as_uri(), declared)
     assert any(f"figures shown, its notebook declares {declared}" in p for p in problems), problems
@@ -354,7 +354,7 @@ def test_every_figure_offers_its_png_and_every_committed_table_its_csv(built):
         for href in offered:
             assert (built["site"] / page.docname).parent.joinpath(unquote(href)).resolve().is_file(), (page.name, href)
         names = {unquote(href).rsplit("/", 1)[1] for href in offered}
-        for figure in project_site.declared_figures(ROOT / page.source, profile):
+        for figure in project_site.declared_figures(ROOT / page.source, profile, ROOT, page.executed):
             assert figure.file.name in names, f"{page.name}: no PNG offered beside {figure.file.name}"
         outputs = [out.get("data", {}).get("text/markdown", "") for cell in nbformat.read(page.executed, as_version=4).cells
                    if cell.cell_type == "code" for out in cell.outputs]
@@ -392,3 +392,21 @@ def test_the_tables_pasted_into_the_docs_offer_their_csv(built):
         html = (built["site"] / f"{doc}.html").read_text()
         offered = {unquote(href).rsplit("/", 1)[1] for href in re.findall(r'href="([^"]*_downloads/[^"]+\.csv)"', html)}
         assert pasted and pasted <= offered, f"{doc}: no CSV beside {sorted(pasted - offered)}"
+
+
+def test_a_declared_figure_is_expected_once_the_executed_copy_ran_its_cell(tmp_path):
+    """A figure cell new in the source (not yet executed) is left out; one the executed copy ran must have its file."""
+    import json
+
+    (tmp_path / "results" / "p" / "figures").mkdir(parents=True)
+    (tmp_path / "results" / "p" / "figures" / "old.png").write_bytes(b"png")
+    cell = {"cell_type": "code", "metadata": {}, "outputs": [], "execution_count": None}
+    old = {**cell, "source": "draw('old')", "metadata": {"figures": [{"files": "old.png", "caption": "c", "alt": "a"}]}}
+    new = {**cell, "source": "draw('new')", "metadata": {"figures": [{"files": "new.png", "caption": "c", "alt": "a"}]}}
+    source, executed = tmp_path / "source.ipynb", tmp_path / "executed.ipynb"
+    source.write_text(json.dumps({"cells": [old, new]}))
+    executed.write_text(json.dumps({"cells": [old]}))
+    assert [f.file.name for f in project_site.declared_figures(source, "p", tmp_path, executed)] == ["old.png"]
+    executed.write_text(json.dumps({"cells": [old, new]}))  # executed, and no file: the stage lost it
+    with pytest.raises(ValueError, match="declares figures 'new.png'"):
+        project_site.declared_figures(source, "p", tmp_path, executed)
