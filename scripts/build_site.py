@@ -71,6 +71,7 @@ html_theme_options = {{"home_page_in_toc": True, "show_navbar_depth": 1, "use_do
                       # the verdict matrix and the figures take the whole width: no "Contents" column beside them
                       "secondary_sidebar_items": {secondary!r}}}
 html_static_path = ["_static"]
+html_extra_path = ["files"]  # every offered PNG and CSV also at its repository path, so a figure opens full size
 html_favicon = "_static/favicon.svg"  # without one the browser asks for /favicon.ico, a 404 in the console
 html_context = {{"default_mode": "light"}}  # the theme's mode switch logs an error on a first visit without one
 html_css_files = ["results.css"]
@@ -267,11 +268,20 @@ def display_width(png: bytes) -> int:
     return round(struct.unpack(">I", png[16:20])[0] * DISPLAY_SCALE)
 
 
+def full_size(site_path: str, docname: str) -> str:
+    """The link from page `docname` to a file of files/ as the site serves it (html_extra_path: at the site root).
+
+    A figure is shown at half its size; a click opens the PNG at full resolution, where every label is legible.
+    """
+    return posixpath.relpath(site_path.removeprefix("files/"), posixpath.dirname(docname) or ".")
+
+
 def figure_markdown(page: NotebookPage, index: int, figure: DeclaredFigure, site_path: str) -> str:
     """A MyST figure: number, caption, which paper figure it reproduces, alt text, and its PNG to download."""
     paper = f" Reproduces the paper's {figure.paper}." if figure.paper else ""
     detail = f" ({figure.file.stem})" if any(char in figure.pattern for char in "*?[") else ""
     return (f"```{{figure}} /{site_path}\n:alt: {figure.alt}{detail}\n:name: {page.docname.replace('/', '-')}-figure-{index}\n"
+            f":target: {full_size(site_path, page.docname)}\n"
             f":width: {display_width(figure.file.read_bytes())}px\n\n**{figure_number(page, index)}.**{detail} {figure.caption}{paper} "
             f"{{download}}`PNG </{site_path}>` (`{site_path.removeprefix('files/')}`)\n```\n")
 
@@ -625,7 +635,7 @@ def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims: 
         f"env, from `{claims_csv}` ({{download}}`CSV </files/{claims_csv}>`; [every cell's evidence]({CLAIMS_DOC}.md)).\n",
         verdict_matrix(claims),
         f"```{{figure}} /files/{figure_rel}\n:alt: {alt}\n"
-        f":name: headline-figure\n:width: 100%\n\n**Headline figure.** {note} "
+        f":name: headline-figure\n:target: {full_size('files/' + figure_rel, 'index')}\n:width: 100%\n\n**Headline figure.** {note} "
         f"{{download}}`PNG </files/{figure_rel}>` (`{figure_rel}`)\n```\n",
         "## What the verdicts say\n",
         "Counted from the claims table (one rule for every claim: holds when the 95% interval excludes failure, does "
