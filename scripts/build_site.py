@@ -93,6 +93,7 @@ RESULTS_CSS = """.bd-page-width { max-width: 120rem; }
 .bd-article table td, .bd-article table th { white-space: normal; overflow-wrap: break-word; vertical-align: top; }
 .bd-article table td.text-right, .bd-article table.dataframe td { white-space: nowrap; }
 .bd-article code.literal, .bd-article code.literal span.pre { white-space: normal; overflow-wrap: anywhere; }
+.bd-article code.download, .bd-article code.download span.pre { white-space: nowrap; overflow-wrap: normal; }
 .bd-article pre { overflow-x: auto; max-width: 100%; }
 .bd-article h1, .bd-article h2, .bd-article h3, .bd-article figcaption { overflow-wrap: anywhere; }
 .bd-article img { max-width: 100%; height: auto; }
@@ -559,14 +560,14 @@ def first_sentence(caption: str) -> str:
     return re.split(r" \(|; |\. ", caption.strip(), maxsplit=1)[0].rstrip(".:") + "."
 
 
-def table_rows(profile: str, shown: dict[str, str], root: Path = ROOT) -> str:
+def table_rows(profile: str, shown: dict[str, str], root: Path = ROOT, titles: dict[str, str] | None = None) -> str:
     """Markdown rows: each committed table, its one-line reading, the page that shows it, its CSV."""
     rows = []
     for text, path in table_files(profile, root).items():
         csv = path.with_suffix(".csv")
         rel = csv.relative_to(root).as_posix()
         page = shown.get(rel)
-        where = f"[{page}]({page}.ipynb)" if page else "[all tables](docs/results.md)"
+        where = f"[{(titles or {}).get(page, page)}]({page}.ipynb)" if page else "[all tables](docs/results.md)"
         rows.append(f"| `{path.relative_to(tables_folder(profile, root)).with_suffix('').as_posix()}` | "
                     f"{first_sentence(text.splitlines()[0]).replace('|', '/')} | {where} | "
                     + (f"{{download}}`CSV </files/{rel}>`" if csv.is_file() else "") + " |")
@@ -645,7 +646,7 @@ def home_page(profile: str, pages: list[NotebookPage], docs: list[str], claims: 
         "## Every table, in one line each\n",
         "Each committed table of `results/" + profile + "/tables/`, its first line of caption, the page that shows it "
         "and its CSV. All of them on one page: [every generated table](docs/results.md).\n",
-        table_rows(profile, shown, root),
+        table_rows(profile, shown, root, {page.docname: page.title for page in pages}),
         "## The paper's tables and figures\n",
         "Every table and figure, as its notebook drew it, with its reading; where we depart from the paper: "
         "[Deviations](docs/deviations.md); the meta-optimization: [The study](docs/study.md).\n",
