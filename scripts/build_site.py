@@ -108,6 +108,7 @@ table.verdicts td a { display: block; color: inherit; text-decoration: none; }
 .v-undecidable { background: #d9c8ef; } .v-not-testable { background: #dddddd; } .v-none { background: #ffffff; color: #999; }
 .v-provisional { background-image: repeating-linear-gradient(135deg, transparent 0 6px, rgba(255,255,255,.55) 6px 9px); }
 .site-footnote { font-size: 0.85rem; color: #555; }
+details.provenance { margin-bottom: 1rem; font-size: 0.9rem; }
 #how-to-enable-uncertainty-estimation-in-ppo-reproduced > h1 { font-size: 2rem; }
 """
 #: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
@@ -193,12 +194,22 @@ def notebook_pages(profile: str, root: Path = ROOT) -> list[NotebookPage]:
 
 
 def provenance_note(page: NotebookPage, profile: str) -> str:
-    """The lines under a notebook page's title: which notebook, which committed copy, which DVC stage."""
-    return (f"> **Where this page comes from.** The notebook `{page.source}` as executed "
-            f"for profile `{profile}` by the DVC stage **`{page.stage}`** (`dvc repro {page.stage}`; `make reproduce` "
-            f"runs every table stage); its committed copy is `{page.committed}`. "
-            "Nothing was executed to build this page. To run it yourself: `make lab`, then open "
-            f"`{page.source}`.\n")
+    """The lines under a notebook page's title: which notebook, which committed copy, which DVC stage.
+
+    Folded (an HTML <details>): its summary names the notebook and the stage at a glance, the rest is one click
+    away, so the page opens with the notebook's own words rather than with where it comes from.
+    """
+    from html import escape
+
+    def code(text: str) -> str:
+        return f"<code>{escape(text)}</code>"
+
+    return (f'<details class="provenance"><summary><strong>Where this page comes from:</strong> {code(page.source)}, '
+            f"DVC stage <strong>{code(page.stage)}</strong></summary><p>The notebook {code(page.source)} as executed "
+            f"for profile {code(profile)} by the DVC stage <strong>{code(page.stage)}</strong> "
+            f"({code('dvc repro ' + page.stage)}; {code('make reproduce')} runs every table stage); its committed copy "
+            f"is {code(page.committed)}. Nothing was executed to build this page. To run it yourself: "
+            f"{code('make lab')}, then open {code(page.source)}.</p></details>\n")
 
 
 @dataclass(frozen=True)

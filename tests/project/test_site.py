@@ -189,7 +189,7 @@ def test_each_notebook_page_names_its_notebook_and_stage_and_shows_its_tables_an
     """Every figure (PNG output) and every table (Markdown or HTML output) of the executed notebook is on its page."""
     for page in built["pages"]:
         html = (built["site"] / f"{page.docname}.html").read_text()
-        stage = f'<strong><code class="docutils literal notranslate"><span class="pre">{page.stage}</span></code></strong>'
+        stage = f"<strong><code>{page.stage}</code></strong>"
         assert page.source in html and stage in html, f"{page.name}: its page does not name {page.source} and {page.stage}"
         outputs = [out.get("data", {}) for cell in nbformat.read(page.executed, as_version=4).cells
                    if cell.cell_type == "code" for out in cell.outputs]
