@@ -109,6 +109,7 @@ table.verdicts td a { display: block; color: inherit; text-decoration: none; }
 .v-provisional { background-image: repeating-linear-gradient(135deg, transparent 0 6px, rgba(255,255,255,.55) 6px 9px); }
 .site-footnote { font-size: 0.85rem; color: #555; }
 details.provenance { margin-bottom: 1rem; font-size: 0.9rem; }
+#the-paper-s-claims-cell-by-cell h3 { font-size: 1.1rem; }
 #how-to-enable-uncertainty-estimation-in-ppo-reproduced > h1 { font-size: 2rem; }
 """
 #: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
