@@ -152,7 +152,8 @@ def verdict_lines(layout: Layout) -> list[str]:
 
 
 def reading(layout: Layout) -> str:
-    lines = ["What these numbers say (computed from the tables above by `scripts/readme_results.py`; cells "
+    lines = ["### What these numbers say", "",  # a heading of its own: a reader looks for the reading
+             "Computed from the tables above by `scripts/readme_results.py` (cells "
              "with one seed are hints, not findings). The verdicts of notebook 6 (one rule for every claim: holds "
              "when the 95% interval excludes failure, does not hold when it excludes success, otherwise undecided; "
              "where one of several cells would decide, that cell's interval is simultaneous over them; an env short "

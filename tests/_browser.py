@@ -56,6 +56,7 @@ def headless_chromium(width: int = 1400, height: int = 1000) -> Iterator[Any]:
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
                 f"--window-size={width},{height}", "--no-first-run", "--disable-background-networking"):
         options.add_argument(arg)  # --no-sandbox: CI runs as root, where chromium's sandbox refuses to start
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})  # console messages, for `driver.get_log("browser")`
     driver = webdriver.Chrome(service=Service(driver_path), options=options)
     driver.set_page_load_timeout(120)
     try:

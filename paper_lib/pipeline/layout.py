@@ -83,7 +83,8 @@ STAGE_TABLES = {
 #: to exist): the Atari OOD sources against the agents' own play.
 CONDITIONAL_TABLES = {"ood": ("ood_source_coverage",)}
 #: The figures each stage writes directly under figures/ (each in every FIGURE_FORMATS).
-STAGE_FIGURES = {"rewards": ("reward_profiles",), "ood": ("roc_value_policy", "roc_policy_js", "auroc_profiles"),
+STAGE_FIGURES = {"rewards": ("reward_profiles",), "ood": ("roc_value_policy", "roc_policy_js", "auroc_profiles",
+                                                                       "auroc_intervals"),
                  "training_and_perturbations": ("training_curves",)}
 #: The folders under tables/ and figures/ a stage writes whole (named as the stage, except where given).
 STAGE_FIGURE_FOLDERS = {"uncertainty_over_time": ("over_time",), "training_and_perturbations": ("perturbation_bars",),

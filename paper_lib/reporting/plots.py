@@ -369,3 +369,34 @@ def performance_profiles(df: pd.DataFrame, xlabel: str, reference: float | None 
 
 __all__ = ["save_figure", "show_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars",
            "timeline", "image_grid", "pareto_scatter", "performance_profiles"]
+
+
+def auroc_with_intervals(df: pd.DataFrame, max_columns: int = 4) -> Figure:
+    """AUROC per method and measure with its 95% interval, one panel per env: the headline figure of the site.
+
+    Expects columns env, method, measure, auroc, auroc_ci_low, auroc_ci_high (notebook 3's `ood_metrics` rows of
+    one OOD set), one row per (env, method, measure). Each method is a column of the panel, each measure a dot
+    beside it with its interval as an error bar; the dashed line is chance (0.5). Read it as "which method's
+    uncertainty separates OOD states in this env, and how sure are we": intervals, not only means.
+    """
+    require_columns(df, ["env", "method", "measure", "auroc", "auroc_ci_low", "auroc_ci_high"], "auroc_with_intervals")
+    envs = list(pd.unique(df["env"]))
+    methods = list(pd.unique(df["method"]))
+    measures = list(pd.unique(df["measure"]))
+    fig, axes = _grid_figure(len(envs), max_columns)
+    offsets = np.linspace(-0.2, 0.2, len(measures)) if len(measures) > 1 else np.zeros(1)
+    colours = sns.color_palette(n_colors=len(measures))
+    for ax, env in zip(axes, envs):
+        sub = df[df["env"] == env]
+        for offset, colour, measure in zip(offsets, colours, measures):
+            rows = sub[sub["measure"] == measure].set_index("method").reindex(methods)
+            x = np.arange(len(methods)) + offset
+            low = (rows["auroc"] - rows["auroc_ci_low"]).clip(lower=0)
+            high = (rows["auroc_ci_high"] - rows["auroc"]).clip(lower=0)
+            ax.errorbar(x, rows["auroc"], yerr=[low, high], fmt="o", color=colour, label=measure, capsize=3)
+        ax.axhline(0.5, color="grey", linestyle="--", linewidth=1)
+        ax.set_xticks(np.arange(len(methods)), methods, rotation=30, ha="right")
+        ax.set(title=str(env), ylim=(0, 1.02), ylabel="AUROC (95% interval)")
+    handles, labels = axes[-1].get_legend_handles_labels()
+    fig.legend(handles, labels, title="measure", loc="outside right upper", frameon=False)
+    return fig

@@ -3,6 +3,12 @@
 The site is built once per module into tmp folders (the same code `make site` runs), served on a free local port,
 and walked in headless chromium: every page loads, every image loads, every internal link (and its #anchor)
 resolves, nothing is fetched from outside the site, and Sphinx's search finds a method name.
+
+What a reader sees is checked in the browser too, not in the HTML: each page shows a minimum of visible text and
+height, no page scrolls sideways at 1400 px or 400 px, each page shows the figures its notebook's *source* declares
+(not its executed copy, which could have lost one), the console has no SEVERE message, and the home page's verdict
+matrix is whole inside the first screen at 1400 px. Two mutation tests show these checks see what they claim to:
+a stylesheet that blanks every page, and an executed notebook that lost a figure, both fail them.
 """
 
 from __future__ import annotations
@@ -10,6 +16,7 @@ from __future__ import annotations
 import functools
 import http.server
 import re
+import shutil
 import sys
 import threading
 import time
@@ -102,12 +109,14 @@ def test_the_site_builds_offline_within_budget(built):
     print(f"site built in {built['seconds']:.0f} s")
 
 
-def test_home_page_opens_with_the_headline_then_every_table_and_figure_page(built):
+def test_home_page_opens_with_the_verdicts_then_figure_reading_tables_and_pages(built):
+    """The answer first: the verdict matrix, the headline figure, the reading, one line per table, then the pages."""
     home = (built["src"] / "index.md").read_text()
-    headline = home.index(project_site.HEADLINE_HEADING)
-    readme_table = (ROOT / "README.md").read_text().split("<!-- headline:start -->")[1].split("<!-- headline:end -->")[0]
-    assert readme_table.strip() in home
-    assert headline < home.index("## The paper's tables and figures")
+    order = [home.index(mark) for mark in ('<div id="verdicts">', ":name: headline-figure", "## What the verdicts say",
+                                            "## Every table, in one line each", "## The paper's tables and figures")]
+    assert order == sorted(order)
+    claims = project_site.read_claims(project_site.active_profile())
+    assert home.count('<td class="v-') == len(claims) + home.count('<td class="v-none"')
     for page in built["pages"]:
         assert f"| `{page.source}` | `{page.stage}` |" in home
     for doc in ("docs/results", "docs/deviations", "docs/study"):
@@ -180,7 +189,7 @@ def test_each_notebook_page_names_its_notebook_and_stage_and_shows_its_tables_an
     """Every figure (PNG output) and every table (Markdown or HTML output) of the executed notebook is on its page."""
     for page in built["pages"]:
         html = (built["site"] / f"{page.docname}.html").read_text()
-        stage = f'<strong><code class="docutils literal notranslate"><span class="pre">{page.stage}</span></code></strong>'
+        stage = f"<strong><code>{page.stage}</code></strong>"
         assert page.source in html and stage in html, f"{page.name}: its page does not name {page.source} and {page.stage}"
         outputs = [out.get("data", {}) for cell in nbformat.read(page.executed, as_version=4).cells
                    if cell.cell_type == "code" for out in cell.outputs]
@@ -203,3 +212,201 @@ def test_search_finds_a_method_name(built, served, tmp_path):
             "return Array.from(document.querySelectorAll('#search-results ul.search li a')).map(a => a.href)")
         keep_screenshot(driver, tmp_path, "site_search.png")
     assert "found" in summary and any(urlparse(href).path.endswith("/docs/methods.html") for href in hits), (summary, hits)
+
+
+#: Pages with little text by design: Sphinx's index of terms and the search page before a query.
+SPARSE_PAGES = ("genindex.html", "search.html")
+#: What a page must show to count as read: characters of visible text in its article, and its article's height.
+MIN_TEXT_CHARS = 300
+MIN_HEIGHT_PX = 400
+#: What the reader sees of one page, measured in the browser (visibility and layout, not the HTML's content).
+READER_JS = """
+const article = document.querySelector('.bd-article');
+const seen = article && article.checkVisibility({checkOpacity: true, checkVisibilityCSS: true});
+const figures = seen ? Array.from(article.querySelectorAll('img')).filter(i => {
+  const box = i.getBoundingClientRect();
+  return box.width > 50 && box.height > 50 && i.checkVisibility({checkOpacity: true, checkVisibilityCSS: true});
+}) : [];
+const matrix = document.querySelector('#verdicts table');
+const headline = document.querySelector('#headline-figure img');
+const box = matrix ? matrix.getBoundingClientRect() : null;
+return {
+  text: seen ? article.innerText.trim().length : 0,
+  height: seen ? article.getBoundingClientRect().height : 0,
+  sideways: document.documentElement.scrollWidth - document.documentElement.clientWidth,
+  figures: figures.length,
+  matrix: box && {bottom: box.bottom, viewport: window.innerHeight, hidden: matrix.scrollWidth - matrix.clientWidth,
+                  cells: matrix.querySelectorAll('td a').length,
+                  figure: headline ? window.innerHeight - headline.getBoundingClientRect().top : null},
+};"""
+
+
+def expected_figures(built: dict) -> dict[str, int]:
+    """{page path: the figures it must show}: each notebook page, what its source notebook declares; the home page, 1."""
+    profile = project_site.active_profile()
+    counts = {f"/{page.docname}.html": len(project_site.declared_figures(ROOT / page.source, profile, ROOT, page.executed))
+              for page in built["pages"]}
+    return {**counts, "/index.html": 1}
+
+
+def reader_problems(driver, url: str, figures: int | None, css: str = "") -> list[str]:
+    """What a reader would miss on `url` at the window's current width (`css`: a stylesheet injected first).
+
+    Too little visible text or height (a blank page), sideways scrolling of the whole page, a figure count other
+    than `figures` (None: not checked), a SEVERE console message.
+    """
+    driver.get(url)
+    wait_for(lambda: driver.execute_script("return document.readyState") == "complete", 60, f"{url} to load")
+    if css:
+        driver.execute_script("const s = document.createElement('style'); s.textContent = arguments[0]; "
+                              "document.head.appendChild(s);", css)
+    seen = driver.execute_script(READER_JS)
+    width = driver.execute_script("return window.innerWidth")
+    page = urlparse(url).path
+    problems = []
+    if not page.endswith(SPARSE_PAGES) and (seen["text"] < MIN_TEXT_CHARS or seen["height"] < MIN_HEIGHT_PX):
+        problems.append(f"{page} at {width} px: {seen['text']} characters of visible text, {seen['height']:.0f} px "
+                        f"high (at least {MIN_TEXT_CHARS} and {MIN_HEIGHT_PX})")
+    if seen["sideways"] > 0:
+        problems.append(f"{page} at {width} px: the page scrolls {seen['sideways']} px sideways")
+    if figures is not None and seen["figures"] != figures:
+        problems.append(f"{page} at {width} px: {seen['figures']} figures shown, its notebook declares {figures}")
+    problems += [f"{page}: console {entry['level']}: {entry['message']}" for entry in driver.get_log("browser")
+                 if entry["level"] == "SEVERE"]
+    return problems
+
+
+def test_every_page_shows_a_reader_its_text_and_figures_without_sideways_scroll(built, served, tmp_path):
+    """At 1400 px and at 400 px: visible text and height, no page-level sideways scroll, the declared figures, a quiet console."""
+    require_browser()
+    urls = _page_urls(built["site"], served)
+    figures = expected_figures(built)
+    problems: list[str] = []
+    with headless_chromium() as driver:
+        for width in (1400, 400):
+            driver.set_window_size(width, 1000)
+            for url in urls:
+                problems += reader_problems(driver, url, figures.get(urlparse(url).path))
+            driver.get(served + "index.html")
+            keep_screenshot(driver, tmp_path, f"site_home_{width}.png")
+    assert not problems, "\n".join(problems)
+
+
+def test_the_verdict_matrix_is_whole_in_the_first_screen(built, served, tmp_path):
+    """At 1400 x 1000 the matrix ends above the fold, shows every column without scrolling, one link per verdict;
+    the headline figure begins in the same screen."""
+    require_browser()
+    claims = project_site.read_claims(project_site.active_profile())
+    with headless_chromium(1400, 1000) as driver:
+        driver.get(served + "index.html")
+        matrix = driver.execute_script(READER_JS)["matrix"]
+        keep_screenshot(driver, tmp_path, "site_verdicts.png")
+    assert matrix, "the home page has no verdict matrix (#verdicts table)"
+    assert matrix["bottom"] <= matrix["viewport"], f"the matrix ends at {matrix['bottom']:.0f} px, below the first screen"
+    assert matrix["hidden"] <= 0, f"{matrix['hidden']} px of the matrix are scrolled out of sight"
+    assert matrix["cells"] == len(claims), f"{matrix['cells']} verdict links for {len(claims)} claim rows"
+    assert matrix["figure"] is not None and matrix["figure"] >= 150, (
+        f"the headline figure shows {matrix['figure']} px in the first screen (at least 150)")
+
+
+def test_a_blank_page_fails_the_reader_checks(built, served):
+    """Mutation: `.bd-article{display:none}` (every page blank, which the link and image walk passes) fails them."""
+    require_browser()
+    figures = expected_figures(built)
+    with headless_chromium() as driver:
+        for page in ("index.html", "notebooks/03_ood_detection.html", "docs/results.html"):
+            problems = reader_problems(driver, served + page, figures.get(f"/{page}"), css=".bd-article{display:none}")
+            assert any("visible text" in p for p in problems), (page, problems)
+
+
+def test_a_figure_lost_from_an_executed_notebook_fails_the_reader_checks(built, tmp_path):
+    """Mutation: the executed OOD notebook without one of its figures, rebuilt, shows one figure fewer than declared."""
+    import dataclasses
+
+    require_browser()
+    page = next(p for p in built["pages"] if p.name == "03_ood_detection.ipynb")
+    nb = nbformat.read(page.executed, as_version=4)
+    cell = next(c for c in nb.cells if c.cell_type == "code" and any("image/png" in o.get("data", {}) for o in c.outputs))
+    first = next(i for i, o in enumerate(cell.outputs) if "image/png" in o.get("data", {}))
+    del cell.outputs[first]  # the first figure of the notebook's first figure cell
+    nbformat.write(nb, tmp_path / page.name)
+    src = tmp_path / "src"
+    shutil.copytree(built["src"], src, ignore=shutil.ignore_patterns("*.ipynb", "docs", "README.md", "index.md",
+                                                                     "claims.md"))
+    (src / "index.md").write_text("# Mutated\n\n```{toctree}\nnotebooks/03_ood_detection\n```\n")
+    text, files = project_site.page_notebook(dataclasses.replace(page, executed=tmp_path / page.name),
+                                             project_site.active_profile())
+    (src / f"{page.docname}.ipynb").write_text(text)
+    index = project_site.build(src, tmp_path / "site", tmp_path / "doctrees", tmp_path / "warnings.txt")
+    declared = len(project_site.declared_figures(ROOT / page.source, project_site.active_profile(), ROOT, page.executed))
+    with headless_chromium() as driver:
+        problems = reader_problems(driver, (index.parent / f"{page.docname}.html").as_uri(), declared)
+    assert any(f"figures shown, its notebook declares {declared}" in p for p in problems), problems
+
+
+def test_every_figure_offers_its_png_and_every_committed_table_its_csv(built):
+    """A reader downloads what they see: beside each declared figure its PNG, beside each committed table its CSV."""
+    profile = project_site.active_profile()
+    committed = {path.with_suffix(".csv").name for path in project_site.table_files(profile).values()}
+    for page in built["pages"]:
+        html = (built["site"] / f"{page.docname}.html").read_text()
+        offered = re.findall(r'href="(\.\./_downloads/[^"]+)"', html)
+        for href in offered:
+            assert (built["site"] / page.docname).parent.joinpath(unquote(href)).resolve().is_file(), (page.name, href)
+        names = {unquote(href).rsplit("/", 1)[1] for href in offered}
+        for figure in project_site.declared_figures(ROOT / page.source, profile, ROOT, page.executed):
+            assert figure.file.name in names, f"{page.name}: no PNG offered beside {figure.file.name}"
+        outputs = [out.get("data", {}).get("text/markdown", "") for cell in nbformat.read(page.executed, as_version=4).cells
+                   if cell.cell_type == "code" for out in cell.outputs]
+        shown = {path.with_suffix(".csv").name for text, path in project_site.table_files(profile).items()
+                 if any(out.strip() == text for out in outputs)}
+        assert shown <= names, f"{page.name}: no CSV beside {sorted(shown - names)}"
+        assert shown <= committed
+
+
+def test_every_page_names_its_commit_and_the_home_page_how_to_cite(built):
+    """The commit in every page's foot; the arXiv link and both BibTeX entries on the home page; CITATION.cff, LICENSE."""
+    import subprocess
+
+    import yaml
+
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    for path in _page_urls(built["site"], ""):
+        assert f'<code class="site-commit">{head}' in (built["site"] / path).read_text(), f"{path}: no commit in its foot"
+    home = (built["site"] / "index.html").read_text()
+    text = re.sub(r"<[^>]+>", "", home)  # the BibTeX is highlighted: its words sit in spans
+    assert project_site.ARXIV in home and "@article{" in text and "@software{" in text
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] and cff["license"] == "MIT"
+    assert "Proximal Policy Optimization" in cff["preferred-citation"]["title"]
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_the_tables_pasted_into_the_docs_offer_their_csv(built):
+    """docs/results.md and the README paste committed tables: each pasted one has its CSV beside it on the site."""
+    tables = project_site.table_files(project_site.active_profile())
+    for doc in ("docs/results", "README"):
+        text = (ROOT / f"{doc}.md").read_text()
+        pasted = {path.with_suffix(".csv").name for committed, path in tables.items()
+                  if (block := project_site.table_block(committed)) and block + "\n" in text + "\n"}
+        html = (built["site"] / f"{doc}.html").read_text()
+        offered = {unquote(href).rsplit("/", 1)[1] for href in re.findall(r'href="([^"]*_downloads/[^"]+\.csv)"', html)}
+        assert pasted and pasted <= offered, f"{doc}: no CSV beside {sorted(pasted - offered)}"
+
+
+def test_a_declared_figure_is_expected_once_the_executed_copy_ran_its_cell(tmp_path):
+    """A figure cell new in the source (not yet executed) is left out; one the executed copy ran must have its file."""
+    import json
+
+    (tmp_path / "results" / "p" / "figures").mkdir(parents=True)
+    (tmp_path / "results" / "p" / "figures" / "old.png").write_bytes(b"png")
+    cell = {"cell_type": "code", "metadata": {}, "outputs": [], "execution_count": None}
+    old = {**cell, "source": "draw('old')", "metadata": {"figures": [{"files": "old.png", "caption": "c", "alt": "a"}]}}
+    new = {**cell, "source": "draw('new')", "metadata": {"figures": [{"files": "new.png", "caption": "c", "alt": "a"}]}}
+    source, executed = tmp_path / "source.ipynb", tmp_path / "executed.ipynb"
+    source.write_text(json.dumps({"cells": [old, new]}))
+    executed.write_text(json.dumps({"cells": [old]}))
+    assert [f.file.name for f in project_site.declared_figures(source, "p", tmp_path, executed)] == ["old.png"]
+    executed.write_text(json.dumps({"cells": [old, new]}))  # executed, and no file: the stage lost it
+    with pytest.raises(ValueError, match="declares figures 'new.png'"):
+        project_site.declared_figures(source, "p", tmp_path, executed)

@@ -406,3 +406,19 @@ def test_performance_profiles_draw_a_curve_per_method_and_bands_only_where_there
     assert any(list(ln.get_xdata()) == [0.5, 0.5] for ln in _data_lines(mujoco))  # chance
     (legend,) = fig.legends
     assert [t.get_text() for t in legend.get_texts()] == ["ms", "drop"]
+
+
+def test_auroc_with_intervals_draws_one_panel_per_env_and_an_error_bar_per_cell():
+    """The site's headline figure: a panel per env, per method a dot per measure with its interval; NaN bounds pass."""
+    import pandas as pd
+
+    from paper_lib.reporting.plots import auroc_with_intervals
+
+    rows = [{"env": env, "method": method, "measure": measure, "auroc": 0.7, "auroc_ci_low": 0.6 if env == "A" else None,
+             "auroc_ci_high": 0.8 if env == "A" else None}
+            for env in ("A", "B", "C") for method in ("ms", "mcd") for measure in ("value_std", "policy_std")]
+    fig = auroc_with_intervals(pd.DataFrame(rows))
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert [ax.get_title() for ax in panels] == ["A", "B", "C"]
+    assert all(len(ax.containers) == 2 for ax in panels)  # one errorbar container per measure
+    assert [t.get_text() for t in panels[0].get_xticklabels()] == ["ms", "mcd"]
