@@ -39,9 +39,24 @@ def register_atari() -> None:
     gym.register_envs(ale_py)
 
 
+def check_atari_rom(env_id: str) -> None:
+    """A missing ROM file is one error with its fix: ale-py would raise a bare FileNotFoundError from deep inside."""
+    import ale_py.roms
+
+    game = gym.spec(env_id).kwargs.get("game")
+    roms_dir = Path(os.environ.get("ALE_ROMS_DIR") or Path(ale_py.roms.__file__).parent)
+    if game and not (roms_dir / f"{game}.bin").is_file():
+        where = "ALE_ROMS_DIR" if os.environ.get("ALE_ROMS_DIR") else "ale-py's ROM folder"
+        raise FileNotFoundError(f"the Atari ROM of {env_id} ({game}.bin) is not in {roms_dir} ({where}): ale-py ships "
+                                "the ROMs, so reinstall it from the lock file (`make setup`, or `.venv/bin/pip install "
+                                "--force-reinstall ale-py`)" + (", or unset ALE_ROMS_DIR" if where == "ALE_ROMS_DIR"
+                                                                else ""))
+
+
 def make_registered_atari(env_id: str, **gym_kwargs: Any) -> gym.Env:
     """gym.make of an ALE id in any process: an env subprocess starts without the registration."""
     register_atari()
+    check_atari_rom(env_id)
     return gym.make(env_id, **gym_kwargs)
 
 
@@ -186,6 +201,7 @@ def make_env(env_id: str, n_envs: int, seed: int, normalize_obs: bool = False,
     vec_env_cls = SubprocVecEnv if env_processes else DummyVecEnv
     if is_atari(env_id):
         register_atari()
+        check_atari_rom(env_id)
         game: Any = functools.partial(make_registered_atari, env_id) if env_processes else env_id
         venv: VecEnv = VecFrameStack(make_atari_env(game, n_envs, seed=seed, vec_env_cls=vec_env_cls,
                                                     env_kwargs=env_kwargs), N_STACK)

@@ -116,6 +116,42 @@ class Reading:
     onsets: np.ndarray  # flagged now but not at the previous step of the same episode
 
 
+
+#: What guard.json must hold for `Guard.load` (`Guard.save` writes them all).
+META_KEYS = ("format", "model", "score", "unit", "alpha", "statistic", "threshold", "versions")
+
+
+def _damaged(path: Path, why: str) -> ValueError:
+    return ValueError(f"{path} {why}: the saved guard is damaged or incomplete; calibrate it again and save it with "
+                      "guard.save(folder) (nothing was loaded)")
+
+
+def _read_meta(path: Path) -> dict:
+    """guard.json as a dict with every key `Guard.load` reads, or one error naming the file and the fix."""
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise _damaged(path, f"is not readable JSON ({type(err).__name__}: {err})") from None
+    if not isinstance(meta, dict):
+        raise _damaged(path, f"holds a {type(meta).__name__}, not a JSON object")
+    missing = [key for key in META_KEYS if key not in meta]
+    if missing:
+        raise _damaged(path, f"lacks {missing}")
+    return meta
+
+
+def _read_arrays(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """arrays.npz whole, or one error naming the file and the fix (a cut or missing file, a missing array)."""
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except Exception as err:  # a missing file, zipfile.BadZipFile, a cut member (EOFError, ValueError): causes vary
+        raise _damaged(path, f"is not a readable .npz ({type(err).__name__}: {err})") from None
+    missing = [key for key in required if key not in arrays]
+    if missing:
+        raise _damaged(path, f"lacks the arrays {missing}")
+    return arrays
+
 class GuardMonitor:
     """A guard applied online to ``n_envs`` parallel episodes; ``reset(mask)`` at each episode start."""
 
@@ -302,7 +338,7 @@ class Guard:
         if key not in available:
             raise FileNotFoundError(f"no guard {key!r} in {root} (available: {available}); save it with guard.save(folder)")
         path = root / key
-        meta = json.loads((path / "guard.json").read_text())
+        meta = _read_meta(path / "guard.json")
         if meta.get("format") != FORMAT:
             raise ValueError(f"{path / 'guard.json'} has format {meta.get('format')!r}, not {FORMAT!r}; save the guard again.")
         identity = model_identity(model)
@@ -315,8 +351,7 @@ class Guard:
         if asked is not None and asked != saved_name:
             raise ValueError(f"the guard in {path} was calibrated for the score {saved_name!r}, not {asked!r}; load it "
                              f"with score={saved_name!r} (or None), or calibrate a new guard for {asked!r}.")
-        with np.load(path / "arrays.npz") as data:
-            arrays = {k: data[k] for k in data.files}
+        arrays = _read_arrays(path / "arrays.npz", ("calibration_scores",))
         prefix = "score/"
         rebuilt = score if isinstance(score, Score) else load_score(
             model, meta["score"], {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)})

@@ -171,6 +171,8 @@ def uncertainty(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndar
     discrete = isinstance(policy.action_space, spaces.Discrete)
     k = policy.n_members if isinstance(policy, MemberActorCriticPolicy) else 1
     available = (measures.MEMBER_MEASURES if k > 1 else ()) + (measures.DISCRETE_ONLY if discrete else ())
+    if isinstance(measures_wanted, str):  # one name, not its letters: uncertainty(p, obs, "value_std")
+        measures_wanted = (measures_wanted,)
     wanted = available if measures_wanted is None else tuple(measures_wanted)
     for name in wanted:
         if name not in available:

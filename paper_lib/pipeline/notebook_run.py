@@ -54,23 +54,48 @@ def strip_run_metadata(nb: nbformat.NotebookNode) -> nbformat.NotebookNode:
     return strip_output(nb, keep_output=True, keep_count=True, keep_id=False, extra_keys=list(RUN_METADATA_KEYS))
 
 
-def notebook_parameters(source: Path) -> list[str]:
-    """The names in `source`'s cell tagged `parameters` (read by papermill without starting a kernel)."""
-    import papermill as pm
+def _default_kind(default: str) -> type | None:
+    """The kind of value a parameter's default literal is (int, float, bool, str, list), None where any goes."""
+    import ast
 
-    return list(pm.inspect_notebook(str(source)))
+    try:
+        value = ast.literal_eval(default)
+    except (ValueError, SyntaxError):
+        return None  # an expression: nothing to compare with
+    return None if value is None else type(value)
+
+
+def _fits(value: Any, kind: type) -> bool:
+    """Whether `value` is of `kind` (an int where a float is the default is fine; a bool is no number here)."""
+    if kind is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, kind)
 
 
 def check_parameters(source: Path, parameters: dict[str, Any]) -> None:
-    """papermill only warns about a parameter the notebook lacks, and the run goes on with the default: refuse it."""
+    """papermill only warns about a parameter the notebook lacks, and the run goes on with the default: refuse it.
+
+    A value of another kind than the default's (`-p n_id_states abc` where the default is 2000) is refused here too,
+    by its name: inside the notebook it would fail later, in whatever cell first used it, with a misleading cause.
+    """
     if not parameters:
         return
-    known = notebook_parameters(source)
-    unknown = sorted(set(parameters) - set(known))
+    import papermill as pm
+
+    declared = pm.inspect_notebook(str(source))
+    unknown = sorted(set(parameters) - set(declared))
     if unknown:
-        have = f"its parameters are {', '.join(known)}" if known else "it has no cell tagged `parameters`"
+        have = f"its parameters are {', '.join(declared)}" if declared else "it has no cell tagged `parameters`"
         given = ", ".join(f"-p {name}" for name in unknown)
         raise ValueError(f"unknown parameter(s) of {source}, got {given}; {have}: fix the name (nothing was executed)")
+    for name, value in parameters.items():
+        kind = _default_kind(declared[name]["default"])
+        if kind is not None and not _fits(value, kind):
+            a = "an" if kind.__name__[0] in "aeiou" else "a"
+            raise ValueError(f"parameter {name} of {source} takes {a} {kind.__name__} (default "
+                             f"{declared[name]['default']}), got {value!r}; give {a} {kind.__name__} (nothing was executed)")
 
 
 def run_notebook(source: str | os.PathLike[str], target: str | os.PathLike[str],

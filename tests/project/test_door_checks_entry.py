@@ -174,19 +174,38 @@ def test_a_smaller_budget_into_a_bigger_run_is_refused(tmp_path):
 # ----------------------------------------------------------------------------- 3. an unknown notebook parameter
 
 
-def test_an_unknown_notebook_parameter_is_an_error_before_anything_runs(tmp_path):
+def _notebook_with_parameters(folder: Path, parameters: str) -> None:
+    """folder/nb.ipynb: a `parameters` cell, then a cell that leaves executed.txt (so a run that started shows)."""
     nb = nbformat.v4.new_notebook(metadata={"kernelspec": {"name": "python3", "display_name": "Python 3",
                                                            "language": "python"}})
-    params = nbformat.v4.new_code_cell("alpha = 1\nlabel = 'x'")
+    params = nbformat.v4.new_code_cell(parameters)
     params.metadata["tags"] = ["parameters"]
     nb.cells = [params, nbformat.v4.new_code_cell("open('executed.txt', 'w').write('ran')")]
-    nbformat.write(nb, tmp_path / "nb.ipynb")
+    nbformat.write(nb, folder / "nb.ipynb")
+
+
+def test_an_unknown_notebook_parameter_is_an_error_before_anything_runs(tmp_path):
+    _notebook_with_parameters(tmp_path, "alpha = 1\nlabel = 'x'")
     before = snapshot(tmp_path)
     done = cli("paper_lib.pipeline.notebook_run", "nb.ipynb", "out.ipynb", "-p", "bogus", "3", cwd=tmp_path)
     assert done.returncode == 2, done.stderr
     assert re.search(r"unknown parameter\(s\) of nb\.ipynb, got -p bogus; its parameters are alpha, label: fix the "
                      r"name \(nothing was executed\)", done.stderr)
     assert snapshot(tmp_path) == before  # neither executed.txt (a cell ran) nor out.ipynb
+
+
+def test_a_notebook_parameter_of_the_wrong_kind_is_an_error_naming_it_before_anything_runs(tmp_path):
+    """`-p alpha abc` where alpha's default is 1: refused by name, not failing later in some cell with another cause."""
+    _notebook_with_parameters(tmp_path, "alpha = 1\nscale = 0.5\nlabel = 'x'\nwhere = None")
+    before = snapshot(tmp_path)
+    done = cli("paper_lib.pipeline.notebook_run", "nb.ipynb", "out.ipynb", "-p", "alpha", "abc", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert re.search(r"parameter alpha of nb\.ipynb takes an int \(default 1\), got 'abc'; give an int "
+                     r"\(nothing was executed\)", done.stderr)
+    assert snapshot(tmp_path) == before
+    ok = cli("paper_lib.pipeline.notebook_run", "nb.ipynb", "out.ipynb", "-p", "scale", "2", "-p", "where", "abc",
+             cwd=tmp_path)  # an int for a float default, anything for a None default
+    assert ok.returncode == 0, ok.stderr
 
 
 # ----------------------------------------------------------------------------- 4. evaluate_agent's --out

@@ -254,6 +254,42 @@ def test_a_guard_goes_with_a_copy_of_its_model_and_with_a_plain_predictor():
     GuardedPolicy(Predictor(), guard, fallback=None)
 
 
+def test_uncertainty_takes_one_measure_name_as_a_string(member_agent, states):
+    """measures_wanted="value_std" is that measure, not its letters (which read as 'measure "v" is not available')."""
+    one = uncertainty(member_agent, states, "value_std", seed=3)
+    assert list(one) == ["value_std"]
+    np.testing.assert_array_equal(one["value_std"], uncertainty(member_agent, states, ("value_std",), seed=3)["value_std"])
+
+
+@pytest.mark.parametrize("damage", [
+    ("guard.json", lambda b: b"not json {"),
+    ("guard.json", lambda b: json.dumps({k: v for k, v in json.loads(b).items() if k != "threshold"}).encode()),
+    ("guard.json", lambda b: b"[1, 2]"),
+    ("arrays.npz", lambda b: b[: len(b) // 2]),
+], ids=["garbage-json", "json-without-threshold", "json-list", "arrays-cut"])
+def test_a_damaged_saved_guard_is_one_clear_error_and_stays_as_it_was(tmp_path, damage):
+    from paper_lib.guard import CallableScore, Guard
+
+    model = make_agent("ppo", "baseline", "CartPole-v1", 0, overrides=TINY)
+    score = CallableScore(lambda s: s[:, 0], "x")
+    folder = Guard.from_scores(model, score, np.arange(20.0), 0.1).save(tmp_path)
+    assert Guard.load(tmp_path, model, score=score).threshold is not None  # whole, it loads
+    name, damaged = damage
+    (folder / name).write_bytes(damaged((folder / name).read_bytes()))
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    with pytest.raises(ValueError, match=rf"{name} .*the saved guard is damaged or incomplete; calibrate it again"):
+        Guard.load(tmp_path, model, score=score)
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_a_missing_atari_rom_is_one_error_naming_the_file_and_the_fix(tmp_path, monkeypatch):
+    monkeypatch.setenv("ALE_ROMS_DIR", str(tmp_path))  # a ROM folder without seaquest.bin (ale-py's own is untouched)
+    with pytest.raises(FileNotFoundError, match=r"ROM of SeaquestNoFrameskip-v4 \(seaquest.bin\) is not in .*reinstall"):
+        make_env("SeaquestNoFrameskip-v4", 1, 0)
+    monkeypatch.delenv("ALE_ROMS_DIR")
+    make_env("SeaquestNoFrameskip-v4", 1, 0).close()
+
+
 def test_saved_normalizers_record_their_env_and_old_ones_are_accepted_with_a_warning(tmp_path):
     from stable_baselines3.common.vec_env import VecNormalize
 
