@@ -584,13 +584,13 @@ def read_source_coverage(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd
     from paper_lib.ood.coverage import COVERAGE_COLUMNS
 
     atari = [run for run in runs if is_atari(run[0])]
-    for run in atari:
-        check_score_provenance(cfg, *run, required=True)
     paths = [scores_dir(cfg, *run) / ATARI_SCORE_FILES[0] for run in atari]
     missing = [str(p) for p in paths if not p.is_file()]
-    if missing:
+    if missing:  # a run never scored (or scored before the check existed): first, as its fix is to score it
         raise FileNotFoundError(f"no source coverage file {missing[0]} ({len(missing)} missing): score those runs "
                                 "again (`python -m paper_lib.pipeline.run_results score <env> <method> <seed>`).")
+    for run in atari:
+        check_score_provenance(cfg, *run, required=True)
     frames = [read_score_csv(scores_dir(cfg, *run), ATARI_SCORE_FILES[0], run_identity(*run), _run_fixes(*run)[0])
               for run in atari]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*COVERAGE_COLUMNS, "env",
