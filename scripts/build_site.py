@@ -309,9 +309,40 @@ def full_size(site_path: str, docname: str) -> str:
     return posixpath.relpath(site_path.removeprefix("files/"), posixpath.dirname(docname) or ".")
 
 
+#: The paper's figure numbers by LaTeX label, read once from its source (data/paper_figures.csv): a notebook declares
+#: the label it reproduces (`fig:reward_graphs`), a reader wants the number printed in the PDF (Fig. 3).
+PAPER_FIGURES = ROOT / "data" / "paper_figures.csv"
+FIGURE_LABEL = re.compile(r"fig:[A-Za-z0-9_]+")
+
+
+def paper_figure_numbers(path: Path = PAPER_FIGURES) -> dict[str, list[int]]:
+    """label -> the paper's figure numbers with it (the paper reuses one label for Figs. 6-9), from the CSV."""
+    import csv
+
+    numbers: dict[str, list[int]] = {}
+    with open(path, newline="", encoding="utf-8") as f:
+        for row in csv.DictReader(f):
+            numbers.setdefault(row["label"], []).append(int(row["figure"]))
+    return numbers
+
+
+def paper_figure_names(text: str, numbers: dict[str, list[int]]) -> str:
+    """Each LaTeX figure label in `text` as the paper's number: 'fig:reward_graphs' -> 'Fig. 3'; a label ending in
+    '_' names the family it starts ('fig:mujoco_id_ood_examples_' -> 'Figs. 31, 32'); an unknown label stays."""
+    def name(match: re.Match[str]) -> str:
+        label = match.group(0)
+        found = sorted({n for key, ns in numbers.items() for n in ns
+                        if key == label or (label.endswith("_") and key.startswith(label))})
+        if not found:
+            return label
+        return f"Fig. {found[0]}" if len(found) == 1 else "Figs. " + ", ".join(map(str, found))
+
+    return FIGURE_LABEL.sub(name, text)
+
+
 def figure_markdown(page: NotebookPage, index: int, figure: DeclaredFigure, site_path: str) -> str:
     """A MyST figure: number, caption, which paper figure it reproduces, alt text, and its PNG to download."""
-    paper = f" Reproduces the paper's {figure.paper}." if figure.paper else ""
+    paper = f" Reproduces the paper's {paper_figure_names(figure.paper, paper_figure_numbers())}." if figure.paper else ""
     detail = f" ({figure.file.stem})" if any(char in figure.pattern for char in "*?[") else ""
     return (f"```{{figure}} /{site_path}\n:alt: {figure.alt}{detail}\n:name: {page.docname.replace('/', '-')}-figure-{index}\n"
             f":target: {full_size(site_path, page.docname)}\n"

@@ -410,3 +410,15 @@ def test_a_declared_figure_is_expected_once_the_executed_copy_ran_its_cell(tmp_p
     executed.write_text(json.dumps({"cells": [old, new]}))  # executed, and no file: the stage lost it
     with pytest.raises(ValueError, match="declares figures 'new.png'"):
         project_site.declared_figures(source, "p", tmp_path, executed)
+
+
+def test_figures_that_reproduce_one_of_the_papers_name_its_number(built):
+    """A declared label (`fig:reward_graphs`) reads as the number printed in the paper (Fig. 3), from
+    data/paper_figures.csv; the training-curve page says so under its figure."""
+    numbers = project_site.paper_figure_numbers()
+    assert numbers["fig:reward_graphs"] == [3] and numbers["fig:scatter_mujoco"] == [4]
+    assert project_site.paper_figure_names("fig:mujoco_id_ood_examples_, appendix H", numbers) == "Figs. 31, 32, appendix H"
+    assert project_site.paper_figure_names("fig:no_such_label", numbers) == "fig:no_such_label"
+    page = next(p for p in built["pages"] if "05_training" in p.source)
+    html = (built["site"] / f"{page.docname}.html").read_text()
+    assert re.search(r"Reproduces the paper(&#8217;|\u2019|')s Fig\. 3\.", html)  # Sphinx's smart quote
