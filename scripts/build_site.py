@@ -532,10 +532,11 @@ ARXIV = "https://arxiv.org/abs/2210.03649"
 
 def verdict_kind(verdict: str) -> str:
     """The kind of a verdict of the claims table ('inconclusive, provisional (3 of 5 seeds)' -> 'inconclusive')."""
-    head = verdict.split(",")[0].split("(")[0].strip()
-    if head not in VERDICT_KINDS:
+    head = verdict.split(",")[0].strip()  # 'undecidable at 5 seeds (needs about 10)' is of kind 'undecidable'
+    kind = next((kind for kind in VERDICT_KINDS if head == kind or head.startswith((kind + " ", kind + "("))), None)
+    if kind is None:
         raise ValueError(f"paper_claims.csv: verdict {verdict!r} is none of {VERDICT_KINDS}: the site colours each kind")
-    return head
+    return kind
 
 
 def short_env(env: str) -> str:

@@ -422,3 +422,24 @@ def test_figures_that_reproduce_one_of_the_papers_name_its_number(built):
     page = next(p for p in built["pages"] if "05_training" in p.source)
     html = (built["site"] / f"{page.docname}.html").read_text()
     assert re.search(r"Reproduces the paper(&#8217;|\u2019|')s Fig\. 3\.", html)  # Sphinx's smart quote
+
+
+@pytest.mark.parametrize("verdict, kind", [
+    ("holds", "holds"), ("does not hold, provisional (3 of 5 seeds)", "does not hold"),
+    ("inconclusive (5 seeds)", "inconclusive"), ("inconclusive, provisional (4 of 5 seeds)", "inconclusive"),
+    ("undecidable at 5 seeds (needs about 10)", "undecidable"),
+    ("not testable (3 distinct OOD conditions; needs at least 5)", "not testable")])
+def test_every_verdict_shape_of_the_claims_rules_has_its_colour(verdict, kind):
+    """The matrix colours each verdict by its kind, whatever detail follows it (an env at its registered seeds reads
+    'undecidable at n seeds (needs about m)': the site build once failed on it, issue 67)."""
+    assert project_site.verdict_kind(verdict) == kind
+    with pytest.raises(ValueError, match="is none of"):
+        project_site.verdict_kind("holdsx")
+
+
+def test_every_committed_verdict_has_its_colour():
+    import csv
+
+    with open(ROOT / "results" / "paper" / "tables" / "paper_claims.csv", newline="", encoding="utf-8") as f:
+        verdicts = {row["verdict"] for row in csv.DictReader(f)}
+    assert all(project_site.verdict_kind(v) in project_site.VERDICT_KINDS for v in verdicts)
