@@ -261,8 +261,12 @@ def run_lock(out_dir: Path, doing: str = "training",
     try:
         yield path
     finally:
+        # The name goes while the lock is still held: a process that opened the old file meanwhile gets its lock
+        # only after this, sees the file unlinked (filelock checks st_nlink) and retries on the name, so two holders
+        # never coexist. Unlinking after the release would let it lock the orphan while a third locks a new file.
+        # A killed holder's file stays (results/**/.*.lock is git-ignored); the kernel dropped its lock.
+        path.unlink(missing_ok=True)
         lock.release()
-        path.unlink(missing_ok=True)  # a killed holder's file stays (results/**/.*.lock is git-ignored); no lock
 
 
 def stage_lock(out: Path, doing: str) -> AbstractContextManager[Path]:

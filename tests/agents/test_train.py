@@ -234,3 +234,36 @@ def test_one_writer_per_run_folder_and_no_run_replaces_another(tmp_path):
                                                r"training ppo CartPole-v1 mc_dropout seed 1 there would replace it"):
         train_run("CartPole-v1", "mc_dropout", 1, out, total_timesteps=64)
     assert (out / "model.zip").read_text() == "the finished run's weights"
+
+
+def test_run_lock_name_goes_before_the_lock_so_a_late_opener_never_holds_an_orphan(tmp_path, monkeypatch):
+    """Issue 71: a process that opened the lock file while the holder worked takes the kernel lock the moment it is
+    released. If the name were still there it would hold a lock on a file about to be unlinked while a third process
+    locks a new file of the same name: two writers. The holder unlinks first, so the late opener sees st_nlink 0
+    (filelock then retries on the name) and the name is free for exactly one next holder."""
+    import fcntl
+
+    import filelock
+
+    from paper_lib.agents.training import run_lock
+
+    out = tmp_path / "run"
+    seen: list[int] = []
+    release = filelock.FileLock.release
+
+    def release_then_late_opener_locks(self, *args, **kwargs):
+        result = release(self, *args, **kwargs)
+        fd = late.pop("fd", None)
+        if fd is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # the holder's lock is gone: this succeeds
+            seen.append(os.fstat(fd).st_nlink)
+            os.close(fd)
+        return result
+
+    late: dict[str, int] = {}
+    monkeypatch.setattr(filelock.FileLock, "release", release_then_late_opener_locks)
+    with run_lock(out) as path:
+        late["fd"] = os.open(path, os.O_RDWR)
+    assert seen == [0], "the late opener locked a file that still had its name: a third writer could lock a new one"
+    with run_lock(out):  # exactly one next holder gets the name
+        pass
