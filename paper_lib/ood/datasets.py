@@ -210,12 +210,12 @@ class StateDataset:
         return save_npz_atomic(path, **arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> StateDataset:
-        """Read a file written by ``save`` (either format); a missing or damaged file raises a clear error."""
+    def load(cls, path: str | os.PathLike[str], remedy: str = "run the collection that writes it again") -> StateDataset:
+        """Read a file written by ``save`` (either format); a missing or damaged file raises a clear error ending in
+        ``remedy`` (the pipeline names its stage command there)."""
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"No StateDataset at {path}: run the collection that writes it first, "
-                                    "or check the path.")
+            raise FileNotFoundError(f"No StateDataset at {path}: {remedy}, or check the path.")
         try:
             with np.load(path, allow_pickle=False) as f:
                 fmt = str(f["format"]) if "format" in f.files else None
@@ -230,7 +230,7 @@ class StateDataset:
             )
         except Exception as err:  # zip, npy, lzma, JSON and field errors all mean one thing here
             raise ValueError(f"{path} is not a readable StateDataset ({type(err).__name__}: {err}); the file is "
-                             "damaged or was written by something else: delete it and re-run the collection.") from err
+                             f"damaged or was written by something else: {remedy}.") from err
         check_labels(dataset, str(path))
         return dataset
 

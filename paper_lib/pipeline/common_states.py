@@ -30,7 +30,7 @@ from paper_lib.pipeline.config import RunConfig, load_run_config
 from paper_lib.pipeline.layout import COMMON_STATES_OF as STATES_OF
 from paper_lib.pipeline.layout import common_runs  # noqa: F401 (this module's readers use it with read_common)
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
-                                             check_dataset_identity, provenance_record, read_replicate_matrix,
+                                             check_dataset_identity, load_run_dataset, provenance_record, read_replicate_matrix,
                                              read_score_csv, replicates_by_metric, run_identity)
 
 if TYPE_CHECKING:
@@ -82,21 +82,17 @@ def common_provenance(cfg: RunConfig, env_id: str, method: str, seed: int) -> di
 def score_common_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     """Score run (env, method, seed)'s checkpoint on the baseline's dataset of that seed; write its files at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
-    from paper_lib.ood.datasets import StateDataset
 
     if method == STATES_OF:
         raise ValueError(f"the {STATES_OF}'s own scores are on the common states already: score a member method")
-    path = cfg.dataset_path(env_id, STATES_OF, seed)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} is missing: the common states of {env_id} seed {seed} are the {STATES_OF} "
-                                f"run's dataset; collect it first (`dvc repro -s collect@{env_id}-{STATES_OF}-{seed}`)")
+    path = cfg.dataset_path(env_id, STATES_OF, seed)  # the common states of a seed are the baseline run's dataset
+    data = load_run_dataset(path, env_id, STATES_OF, seed)
+    check_dataset_identity(data.metadata, path, env_id, STATES_OF, seed)
     out = common_scores_dir(cfg, env_id, method, seed)
     th.set_num_threads(1)
     th.manual_seed(seed)  # as the `score` stage: MC members draw their masks from torch
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
     provenance = common_provenance(cfg, env_id, method, seed)
-    data = StateDataset.load(path)
-    check_dataset_identity(data.metadata, path, env_id, STATES_OF, seed)
     vecnormalize = saved_normalizer(ckpt.vecnormalize_path)
     with stage_lock(out, "scoring the common states"):
         return _score_common_locked(cfg, env_id, method, seed, ckpt, data, vecnormalize, out, provenance)

@@ -42,7 +42,7 @@ from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable
                                  write_text_atomic)
 from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Layout, combination_name
+from paper_lib.pipeline.layout import Layout, combination_name, stage_suffix
 
 if TYPE_CHECKING:
     from paper_lib.agents.checkpoints import Checkpoint
@@ -372,21 +372,29 @@ def record_provenance(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> list[
             for run, record in records.items() if record is not None]
 
 
+def load_run_dataset(path: Path, env_id: str, method: str, seed: int) -> StateDataset:
+    """A run's collected states; missing or damaged, the error names both ways back: the committed copy, or the
+    stage that collects it (a dataset is simulation: no rebuild writes it)."""
+    from paper_lib.ood.datasets import StateDataset
+
+    remedy = (f"restore the committed copy (`git checkout -- {path}`) or collect it again (`dvc repro -s "
+              f"collect@{stage_suffix(env_id, method, seed)}`; `make recollect` collects every run's)")
+    if not path.is_file():
+        raise FileNotFoundError(f"dataset {path} is missing; {remedy}")
+    return StateDataset.load(path, remedy=remedy)
+
+
 def score_run_files(cfg: RunConfig, env_id: str, method: str, seed: int) -> Path:
     """Score one run's ID/OOD dataset with every measure and detector; write its result files and their provenance
     at once."""
     from paper_lib.agents.checkpoints import load_checkpoint
-    from paper_lib.ood.datasets import StateDataset
 
     out = check_scores_destination(scores_dir(cfg, env_id, method, seed), env_id)  # before any work
     th.set_num_threads(1)
     th.manual_seed(seed)  # MC Dropout / DropConnect members draw their masks from torch
     ckpt = load_checkpoint(cfg.checkpoint_dir(env_id, method, seed), env_id, method, seed)
     path = cfg.dataset_path(env_id, method, seed)
-    if not path.is_file():
-        raise FileNotFoundError(f"dataset {path} is missing; collect it with `dvc repro -s collect@{env_id}-{method}-{seed}` "
-                                "(`make recollect` collects every run's)")
-    data = StateDataset.load(path)
+    data = load_run_dataset(path, env_id, method, seed)
     check_dataset_identity(data.metadata, path, env_id, method, seed)
     with stage_lock(out, "scoring"):
         return _score_locked(cfg, env_id, method, seed, ckpt, data, out)

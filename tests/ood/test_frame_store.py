@@ -82,5 +82,5 @@ def test_damaged_frame_stores_raise_clear_errors(tmp_path):
         arrays = {k: f[k] for k in f.files}
     arrays["frames_xz"] = arrays["frames_xz"][:-8]  # a truncated lzma stream
     np.savez_compressed(path, **arrays)
-    with pytest.raises(ValueError, match="not a readable StateDataset.*re-run the collection"):
+    with pytest.raises(ValueError, match="not a readable StateDataset.*run the collection that writes it again"):
         StateDataset.load(path)

@@ -37,7 +37,7 @@ from paper_lib.ood.datasets import StateDataset
 from paper_lib.ood.mujoco import PerturbationConfig
 from paper_lib.pipeline.config import load_run_config, use_profile
 from paper_lib.pipeline.evaluate_agent import Budget, evaluate_agent
-from paper_lib.pipeline.run_results import read_all_replicates, read_evaluations, read_scores
+from paper_lib.pipeline.run_results import load_run_dataset, read_all_replicates, read_evaluations, read_scores
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -135,6 +135,10 @@ def ws(tmp_path_factory) -> SimpleNamespace:
     StateDataset(states=np.zeros((4, 4), dtype=np.float32), labels=[0] * 4, source=["id"] * 4,
                  config_index=[-1, -1, 0, 0], episode=[0, 0, 1, 1], step=[0, 1, 0, 1],
                  configs=['{"env_id": "HalfCheetah-v5", "gravity": [0.0, 0.0, -15.0]}']).save(root / "relabelled.npz")
+    cut = root / "cut" / "seed0.npz"  # a dataset cut off mid-file (a killed copy, a full disk)
+    cut.parent.mkdir()
+    whole = (root / "relabelled.npz").read_bytes()
+    cut.write_bytes(whole[: len(whole) // 2])
     return SimpleNamespace(root=root, ck=ck, params=root / "params.yaml", text=(root / "params.yaml").read_text())
 
 
@@ -452,6 +456,11 @@ API_CASES: list[tuple[str, Callable, str]] = [
      r"relabelled\.npz: 2 of 4 states of source 'id' point at an OOD configuration \(e\.g\. state 2: config_index 0\); "
      r"ID states are collected in the unmodified env \(config_index -1\), so these are relabelled OOD states: collect "
      r"the states again \(`make recollect`\) or correct the labels"),
+    ("dataset-cut-in-half", lambda ws: partial(load_run_dataset, ws.root / "cut" / "seed0.npz", "HalfCheetah-v5",
+                                               "baseline", 0),
+     r"cut/seed0\.npz is not a readable StateDataset \(BadZipFile: .*\); the file is damaged or was written by something "
+     r"else: restore the committed copy \(`git checkout -- .*cut/seed0\.npz`\) or collect it again \(`dvc repro -s "
+     r"collect@HalfCheetah-v5-baseline-0`; `make recollect` collects every run's\)"),
     # score files cut off, of another run, or without their record (issue 71)
     ("scores-metrics-cut-in-half", scores("metrics_half"), r"metrics_half/results/paper/scores/HalfCheetah-v5/baseline/"
      r"seed0/metrics\.csv is incomplete \(cut off\?\): its last line ends mid-row; score the run again \(`python -m "
