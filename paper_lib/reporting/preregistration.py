@@ -22,8 +22,9 @@ from paper_lib.common.checks import check_keys
 from paper_lib.reporting.power import MAX_SEEDS, all_of, any_of, at_least, clear_probabilities, seeds_needed
 
 KEYS = ("registered", "level", "power", "reward_margin", "js_threshold", "min_ood_conditions", "planned_seeds",
-        "power_seeds", "power_file", "auroc_order_states", "speed")
+        "power_seeds", "power_file", "auroc_order_states", "speed", "pedm")
 SPEED_KEYS = ("registered", "timings", "inference", "training", "margin", "min_repetitions")
+PEDM_KEYS = ("registered", "metric", "versus", "seeds")
 POWER_COLUMNS = ["claim", "env", "cells", "estimate", "seeds_at_hand", "planned_seeds", "decide_at_planned",
                  "seeds_needed", "note"]
 MEMBER_METHODS = ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")
@@ -43,6 +44,7 @@ class Preregistration:
     power_file: str                      # the power table, relative to the repository root
     auroc_order_states: str              # which states the AUROC-order claim compares the methods on
     speed: dict[str, Any]                # the speed claim (issue 70): its benchmark file, timings, margin, repetitions
+    pedm: dict[str, Any]                 # the PEDM claim (issue 69): its metric, the detector compared, its seeds
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> Preregistration:
@@ -51,8 +53,8 @@ class Preregistration:
             raise ValueError("params.yaml has no `preregistration` entry: the claims' rules and seed counts are "
                              "fixed there (docs/preregistration.md); restore it from git.")
         check_keys(entry, "params.yaml preregistration", KEYS, KEYS, fix="restore the entry from git")
-        check_keys(entry["speed"], "params.yaml preregistration.speed", SPEED_KEYS, SPEED_KEYS,
-                   fix="restore the entry from git")
+        for name, keys in (("speed", SPEED_KEYS), ("pedm", PEDM_KEYS)):
+            check_keys(entry[name], f"params.yaml preregistration.{name}", keys, keys, fix="restore the entry from git")
         if set(entry["planned_seeds"]) != {"MuJoCo", "Atari"}:
             raise ValueError(f"params.yaml preregistration.planned_seeds must name MuJoCo and Atari, got "
                              f"{sorted(entry['planned_seeds'])}.")

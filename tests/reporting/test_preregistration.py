@@ -57,6 +57,11 @@ def test_a_missing_registration_or_power_table_is_one_clear_error(tmp_path):
         Preregistration.from_params({k: v for k, v in params.items() if k != "preregistration"})
     with pytest.raises(ValueError, match="unknown key"):
         Preregistration.from_params({**params, "preregistration": {**params["preregistration"], "margin": 0.2}})
+    entry = params["preregistration"]
+    without_versus = {k: v for k, v in entry["pedm"].items() if k != "versus"}
+    with pytest.raises(ValueError, match=r"preregistration\.pedm.*versus"):
+        Preregistration.from_params({**params, "preregistration": {**entry, "pedm": without_versus}})
+    assert Preregistration.from_params(params).pedm["versus"] == "pedm"
     with pytest.raises(ValueError, match="written once by scripts/power_analysis.py"):
         read_power(tmp_path / "power.csv")
 
