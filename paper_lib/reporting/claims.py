@@ -64,6 +64,7 @@ CLAIMS = {
     "js_like_std": "The Jensen-Shannon measure ranks the methods like policy std (appendix D)",
     "speed": "Masksembles infers faster than MC Dropout and trains comparably (section 4)",
     "members_vs_detectors": "(ours) The agent's own uncertainty beats the best member-free detector on the same states",
+    "members_vs_pedm": "(ours) The agents' own uncertainty beats PEDM on PEDM's protocol",
 }
 CLAIM_KEYS = {text: key for key, text in CLAIMS.items()}
 COLUMNS = ["claim", "env", "verdict", "evidence"]
@@ -371,8 +372,10 @@ def js_claim(metrics: pd.DataFrame, design: ClaimDesign = ClaimDesign(), n_boot:
 
 
 def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
-                   metrics: pd.DataFrame | None = None) -> list[dict[str, str]]:
-    """Per env, perturbed states: does some member measure beat its runs' best member-free detector?
+                   metrics: pd.DataFrame | None = None, claim: str = "members_vs_detectors",
+                   ood_set: str = "perturbed") -> list[dict[str, str]]:
+    """Per env, perturbed states: does some member measure beat its runs' best member-free detector? (Claim 7 reads
+    the same rule on PEDM's protocol: `claim="members_vs_pedm"`, `pedm_claim.pedm_versus`.)
 
     Success is at least one (method, measure) cell above the detector, failure every cell below it, each at
     the same 5% risk of a wrong verdict: holds when some cell's simultaneous interval (Bonferroni over the env's
@@ -383,7 +386,7 @@ def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
     """
     _require_family_intervals(versus, "auroc_vs_detectors")
     rows = []
-    for env_id, cells in versus[versus.ood_set == "perturbed"].groupby("env", sort=False):
+    for env_id, cells in versus[versus.ood_set == ood_set].groupby("env", sort=False):
         above, below = int((cells.ci_low > 0).sum()), int((cells.ci_high < 0).sum())
         tested = cells[cells.n_seeds >= 2]
         n_seeds = int(cells.n_seeds.min())
@@ -396,7 +399,7 @@ def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
         else:
             verdict = inconclusive(n_seeds)
         best = cells.loc[cells.difference.idxmax()]
-        rows.append(_row("members_vs_detectors", env_id, _untestable(metrics, env_id, design) or verdict,
+        rows.append(_row(claim, env_id, _untestable(metrics, env_id, design) or verdict,
                          f"of {len(cells)} measure cells (95% intervals): {above} above the detector, "
                          f"{len(cells) - above - below} tied, {below} below; best {best.method} {best.measure} "
                          f"{best.difference:+.2f} [{best.ci_low:+.2f}, {best.ci_high:+.2f}], simultaneous over "
@@ -428,10 +431,13 @@ def base_verdict(verdict: str) -> str:
 
 def paper_claims(vs_baseline: pd.DataFrame, pairwise: pd.DataFrame, metrics: pd.DataFrame, versus: pd.DataFrame,
                  spawn: pd.DataFrame | None, design: ClaimDesign = ClaimDesign(),
-                 timings: pd.DataFrame | None = None) -> pd.DataFrame:
+                 timings: pd.DataFrame | None = None, pedm_aurocs: pd.DataFrame | None = None) -> pd.DataFrame:
     """Every claim's rows, in the order of ``CLAIMS``; `timings`: the benchmark's repetitions
-    (`speed_claim.read_timings`), None while none is committed."""
+    (`speed_claim.read_timings`), None while none is committed; `pedm_aurocs`: the runs' PEDM-protocol AUROCs
+    (`pedm_claim.RUN_AUROC_COLUMNS`), None while no run has them."""
+    from paper_lib.reporting.pedm_claim import pedm_rows
+
     rows = (reward_claim(vs_baseline, design) + auroc_claim(pairwise, design, metrics)
             + levitation_claim(spawn, design) + js_claim(metrics, design) + speed_rows(timings, design)
-            + detector_claim(versus, design, metrics))
+            + detector_claim(versus, design, metrics) + pedm_rows(pedm_aurocs, design))
     return pd.DataFrame(rows, columns=COLUMNS)

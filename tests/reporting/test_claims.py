@@ -14,6 +14,7 @@ import numpy as np
 from paper_lib.reporting.claims import (AUROC_ORDER_PAIRS, CLAIMS, FAILS, HOLDS, MIXED, UNTESTED, ClaimDesign,
                                         auroc_claim, base_verdict, detector_claim, js_claim, levitation_claim,
                                         paper_claims, reward_claim)
+from paper_lib.reporting.pedm_claim import NOT_SCORED as PEDM_NOT_SCORED
 from paper_lib.reporting.speed_claim import NO_BENCHMARK
 
 
@@ -77,7 +78,8 @@ def test_each_rule_on_a_case_known_by_hand():
                         "levitation": HOLDS,  # 2 of 3 methods on both counts
                         "js_like_std": HOLDS,  # the same order of the eight cells
                         "speed": NO_BENCHMARK,  # no benchmark with repetitions given (tests/reporting/test_speed_claim.py)
-                        "members_vs_detectors": HOLDS}  # one cell above 0
+                        "members_vs_detectors": HOLDS,  # one cell above 0
+                        "members_vs_pedm": PEDM_NOT_SCORED}  # no PEDM-protocol scores given (tests/reporting/test_pedm_claim.py)
 
 
 def test_the_opposite_cases_and_what_cannot_be_tested_yet():
