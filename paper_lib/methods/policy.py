@@ -217,21 +217,23 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
 
     # --- member outputs ------------------------------------------------------------------
     def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, *,
-                                   actor: bool = True, critic: bool = True
+                                   actor: bool = True, critic: bool = True, path: str = "exact"
                                    ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """All k members on every state, one batched pass: (k, N, A) action params and (k, N) values.
 
         MC methods draw their masks per (member, state), from `state_seeds` (one per state) or,
         when None, from seeds drawn from torch's RNG. `actor` / `critic` False skip that output
-        (None). Without autograd this runs the lean inference path, else the modules themselves.
+        (None). Without autograd this runs the lean inference path (`path`: "exact" or "fast",
+        `inference.PATHS`), else the modules themselves.
         """
         seeds = self.state_seeds(obs.shape[0], state_seeds)
-        pi, vf = lean.members(self, obs, seeds, actor=actor, critic=critic)
+        pi, vf = lean.members(self, obs, seeds, actor=actor, critic=critic, path=path)
         return pi, (None if vf is None else vf.squeeze(-1))
 
-    def last_hidden_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
+    def last_hidden_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, path: str = "exact"
+                                ) -> th.Tensor:
         """(k, N, H): every member's last hidden layer (the action head's input), masks drawn as above."""
-        return lean.last_hidden_members(self, obs, self.state_seeds(obs.shape[0], state_seeds))
+        return lean.last_hidden_members(self, obs, self.state_seeds(obs.shape[0], state_seeds), path)
 
     @property
     def samples_members(self) -> bool:
@@ -254,7 +256,8 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         return per_state_masks(self.mlp_extractor, draw_state_seeds(n_states) if state_seeds is None else state_seeds)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        pi, _ = self.member_outputs_from_tensor(observation, critic=False)
+        # "fast": on fewer than COMPACT_MIN_STATES states (acting in envs) it is the exact path, bit for bit
+        pi, _ = self.member_outputs_from_tensor(observation, critic=False, path="fast")
         return combine_actions(pi, self, *self.inference, deterministic=deterministic, **self.inference_options)
 
     def set_training_mode(self, mode: bool) -> None:
