@@ -249,7 +249,8 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
         actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
                                   **policy.inference_options).cpu().numpy()
         exact = not fast_arithmetic("fast", len(observation))
-        scores = {name: value.cpu().numpy() for name, value in measures.torch_measures(vf, pi, discrete, exact=exact).items()}
+        measured = measures.torch_measures(vf, pi, discrete, exact=exact)
+        scores = {name: value.cpu().numpy() for name, value in measured.items()}
     actions = actions.reshape((-1, *policy.action_space.shape))
     if isinstance(policy.action_space, spaces.Box):  # np.clip, as SB3's predict; this form is faster on small arrays
         actions = np.minimum(np.maximum(actions, policy.action_space.low), policy.action_space.high)
@@ -260,5 +261,6 @@ def _checked_to_tensor(policy: ActorCriticPolicy, observation: np.ndarray) -> th
     """SB3's `obs_to_tensor` of a batch `check_observations` accepted; flat observations without
     its checks and copy, which cost more than a one-state forward pass's layers."""
     if observation.shape[1:] == policy.observation_space.shape and not is_image_space(policy.observation_space):
-        return th.as_tensor(observation, device=policy.device)
+        # SB3's `policy.device` walks the parameters (~5 us); this buffer moves with them
+        return th.as_tensor(observation, device=policy._buffers["_inference_mode"].device)
     return policy.obs_to_tensor(observation)[0]

@@ -9,7 +9,8 @@ computes the same numbers with less work:
 - on many states a Masksembles member computes only the units its mask keeps (member j's
   weights gathered as W[kept_out_j][:, kept_in_j], all members in one batched matmul or
   grouped convolution): for k = 4 at scale 2 about one dense network's multiply-adds instead
-  of k networks';
+  of k networks'; the gathered weights and kept units are made once and reused across calls
+  while the weights and masks stay the same (`derived`);
 - MC masks per (member, state) come from `per_state` (exactly `per_state_masks`' draws);
 - image batches run in chunks of states, so memory stays bounded for any batch;
 - no module calls, no SB3 distribution objects, no repeated views: on one state, Python
@@ -17,7 +18,9 @@ computes the same numbers with less work:
 
 Numbers: an MLP on fewer than COMPACT_MIN_STATES states gives the reference's bits (the same
 tensor ops on the same shapes); Masksembles on kept units and the CNN agree up to float
-rounding (~1e-7 relative). `members` falls back to the reference modules
+rounding (~1e-7 relative). On many states there are two paths (`PATHS`): "exact", the numbers
+every committed score was computed with, bit for bit; "fast" (states-major Masksembles towers,
+tanh from numpy, features-major heads), the same up to float rounding in about half the time. `members` falls back to the reference modules
 (`reference_members`) with autograd on or for a network this path does not know.
 tests/methods/test_fast_inference.py holds both equal.
 """
@@ -58,8 +61,8 @@ COMPACT_MIN_STATES = 64
 #: Image states per pass: the k members' activations of this many states stay a few tens of MB.
 IMAGE_CHUNK_STATES = 64
 #: Elementwise activations: applied to a member's kept units, they give its kept outputs.
-ELEMENTWISE = (nn.Tanh, nn.ReLU, nn.LeakyReLU, nn.ELU, nn.SELU, nn.GELU, nn.SiLU, nn.Sigmoid, nn.Softplus,
-               nn.Identity)
+ELEMENTWISE = frozenset((nn.Tanh, nn.ReLU, nn.LeakyReLU, nn.ELU, nn.SELU, nn.GELU, nn.SiLU, nn.Sigmoid, nn.Softplus,
+                         nn.Identity))
 #: Activations called as functions: a module call costs more than a small tensor op.
 _FUNCTIONS = {nn.Tanh: th.tanh, nn.ReLU: th.relu, nn.Identity: lambda x: x}
 #: The lean path's two ways on COMPACT_MIN_STATES states or more (below it both are the reference's arithmetic):
@@ -205,9 +208,10 @@ def _dense_linear(layer: MemberLinear, x: th.Tensor, run: Pass) -> th.Tensor:
     if layer.mode == SHARED:
         return F.linear(x, *linear_views(layer))
     if layer.mode == ENSEMBLE:
+        weight, bias = layer._parameters["weight"], layer._parameters["bias"]  # not via Module.__getattr__ (~1 us)
         if run.fast and layer.d_out <= NARROW_OUT and x.dim() == 3:
-            return narrow_output(x, layer.weight.transpose(1, 2), layer.bias.transpose(1, 2))
-        return th.baddbmm(layer.bias, _members(x, run.k) if x.dim() == 2 else x, layer.weight)
+            return narrow_output(x, weight.transpose(1, 2), bias.transpose(1, 2))
+        return th.baddbmm(bias, _members(x, run.k) if x.dim() == 2 else x, weight)
     return per_state.dropconnect_linear(layer, _members(x, run.k) if x.dim() == 2 else x, run.layer_seeds(layer))
 
 
