@@ -20,9 +20,10 @@ Numbers: an MLP on fewer than COMPACT_MIN_STATES states gives the reference's bi
 tensor ops on the same shapes); Masksembles on kept units and the CNN agree up to float
 rounding (~1e-7 relative). On many states there are two paths (`PATHS`): "exact", the numbers
 every committed score was computed with, bit for bit; "fast" (states-major Masksembles towers,
-tanh from numpy, features-major heads), the same up to float rounding in about half the time. `members` falls back to the reference modules
-(`reference_members`) with autograd on or for a network this path does not know.
-tests/methods/test_fast_inference.py holds both equal.
+tanh from numpy, features-major heads), the same up to float rounding in about half the time.
+`members` falls back to the reference modules (`reference_members`) with autograd on or for a
+network this path does not know. tests/methods/test_fast_inference.py and test_inference_paths.py
+hold them all equal.
 """
 
 from __future__ import annotations

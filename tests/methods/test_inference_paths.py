@@ -39,7 +39,8 @@ def test_the_fast_path_equals_the_exact_path_and_the_reference(kind, method):
             assert_close(ours, ref, f"{kind} {method} {what} fast vs reference")
         assert_close(inference.fast_last_hidden(policy, obs, seeds, path="fast"),
                      inference.reference_last_hidden(policy, obs, seeds), "features")
-    fast_scores, exact_scores = uncertainty(policy, obs_array, seed=3, path="fast"), uncertainty(policy, obs_array, seed=3)
+    fast_scores = uncertainty(policy, obs_array, seed=3, path="fast")
+    exact_scores = uncertainty(policy, obs_array, seed=3)
     assert fast_scores.keys() == exact_scores.keys()
     for name in exact_scores:
         assert_close(fast_scores[name], exact_scores[name], name)
