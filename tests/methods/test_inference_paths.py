@@ -173,3 +173,18 @@ def test_tanh_from_numpy_leaves_the_observations_alone():
     assert th.equal(obs, before)
     assert_close(pi, reference)
     np.testing.assert_array_equal(obs.numpy(), before.numpy())
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_the_fast_member_stds_equal_the_numpy_measures(discrete):
+    """The fast path's stds (mean, deviations, mean square) against the numpy definitions, zero spread included."""
+    from paper_lib.measures import definitions as measures
+
+    rng = np.random.default_rng(1)
+    values, params = rng.normal(size=(4, 300)).astype(np.float32), (3 * rng.normal(size=(4, 300, 5))).astype(np.float32)
+    values[:, 0], params[:, 0] = values[0, 0], params[0, 0]  # identical members: exactly zero
+    expected = measures.all_measures(values, params, discrete)
+    got = measures.torch_measures(th.as_tensor(values), th.as_tensor(params), discrete, exact=False)
+    for name in expected:
+        np.testing.assert_allclose(got[name].numpy(), expected[name], rtol=1e-5, atol=1e-6, err_msg=name)
+    assert float(got["value_std"][0]) == 0.0 and float(got["policy_std"][0]) == 0.0
