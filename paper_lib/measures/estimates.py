@@ -244,7 +244,7 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
         policy.set_training_mode(False)
     tensor = _checked_to_tensor(policy, observation)
     discrete = isinstance(policy.action_space, spaces.Discrete)
-    with th.no_grad():
+    with th.inference_mode():  # no version counters or view tracking: a few us of a one-state call; only numpy leaves
         pi, vf = policy.member_outputs_from_tensor(tensor, path="fast")
         actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
                                   **policy.inference_options).cpu().numpy()
