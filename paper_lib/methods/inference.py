@@ -340,15 +340,10 @@ def states_major_tower(modules: nn.Sequential, x: th.Tensor, run: Pass, kept: di
                 w, b = member_weights(module, rows, cols, run.k, "states_major")
                 h = th.baddbmm(b, _members(h, run.k) if h.dim() == 2 else h, w)
             cols, masked_by, owned = rows, mask, True
-        elif kind is MasksemblesMask and module is not masked_by:
-            if h.dim() != 2:
-                raise Unsupported("a Masksembles mask after member-specific units")
-            cols, masked_by, owned = kept[module], module, True
-            h = h.index_select(1, cols.flatten()).view(h.shape[0], run.k, -1).transpose(0, 1).contiguous()
         elif kind in ELEMENTWISE:
             h = activate_owned(module, h) if owned else activate(module, h)  # fast path only
-        elif kind is not MasksemblesMask:
-            raise Unsupported(f"{kind.__name__} in a states-major tower")
+        elif kind is not MasksemblesMask or module is not masked_by:  # a mask only right after linear + activation
+            raise Unsupported(f"{kind.__name__} where a states-major tower does not take it")
     return (_members(h, run.k), None) if h.dim() == 2 else (h, cols)
 
 
