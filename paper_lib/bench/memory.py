@@ -84,7 +84,7 @@ def measure_in_this_process(spec: dict[str, Any]) -> dict[str, float]:
     else:
         model.predict(states, deterministic=True)
         if has_measures(model, method):
-            uncertainty(model.policy, states)
+            uncertainty(model.policy, states, path="fast")
     return {"floor_mb": floor, "peak_mb": _peak_rss_mb()}
 
 

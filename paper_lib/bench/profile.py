@@ -48,10 +48,10 @@ def _inference_call(model, method: str, what: str, states: np.ndarray):
     if what == "predict" or (what == "act" and not has_measures(model, method)):
         return lambda: model.predict(states, deterministic=True)
     if what == "uncertainty":
-        return lambda: uncertainty(model.policy, states)
+        return lambda: uncertainty(model.policy, states, path="fast")
     if isinstance(model.policy, MemberActorCriticPolicy):
         return lambda: act_with_uncertainty(model.policy, states)
-    return lambda: (model.predict(states, deterministic=True), uncertainty(model.policy, states))
+    return lambda: (model.predict(states, deterministic=True), uncertainty(model.policy, states, path="fast"))
 
 
 def profile_inference(config: BenchConfig, env_id: str, method: str, what: str, n_states: int, top: int = 15) -> str:

@@ -42,7 +42,8 @@ def _tile(states: np.ndarray, n: int) -> np.ndarray:
 
 
 def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, dict]:
-    """(batch-1 calls, n-states calls), keyed by (method, measurement)."""
+    """(batch-1 calls, n-states calls), keyed by (method, measurement). Uncertainty runs on the "fast" lean path
+    (`inference.PATHS`: the exact one's numbers up to float rounding), as `act_with_uncertainty` and `predict` do."""
     one, n = states[:1], len(states)
     small: dict[tuple[str, str], Callable[[], object]] = {}
     large: dict[tuple[str, str], Callable[[], object]] = {}
@@ -54,8 +55,8 @@ def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, di
                 small[method, "act_uncertainty_b1"] = lambda m=model: act_with_uncertainty(m.policy, one)
             else:  # a discrete baseline's max_prob / entropy: predict, then score
                 small[method, "act_uncertainty_b1"] = lambda m=model: (m.predict(one, deterministic=True),
-                                                                       uncertainty(m.policy, one))
-            large[method, f"uncertainty_b{n}"] = lambda m=model: uncertainty(m.policy, states)
+                                                                       uncertainty(m.policy, one, path="fast"))
+            large[method, f"uncertainty_b{n}"] = lambda m=model: uncertainty(m.policy, states, path="fast")
     return small, large
 
 

@@ -30,8 +30,8 @@ FOLDER = "experiment"
 #: Every paper_lib module a guard experiment runs (`tests/guard/test_guard.py` checks a real run imports no other).
 SOURCE_MODULES = tuple(f"paper_lib{suffix}" for suffix in (
     "", ".common", ".common.checks", ".common.io", ".common.provenance", ".methods", ".methods.buffer",
-    ".methods.groups", ".methods.independent", ".methods.inference", ".methods.layers", ".methods.networks",
-    ".methods.per_state", ".methods.policy", ".methods.trpo", ".measures", ".measures.definitions",
+    ".methods.derived", ".methods.groups", ".methods.independent", ".methods.inference", ".methods.layers",
+    ".methods.networks", ".methods.per_state", ".methods.policy", ".methods.trpo", ".measures", ".measures.definitions",
     ".measures.detectors", ".measures.estimates", ".agents", ".agents.checkpoints", ".agents.envs", ".agents.factory",
     ".ood", ".ood.atari", ".ood.collect", ".ood.datasets", ".ood.frame_store", ".ood.mujoco", ".ood.pixels",
     ".pipeline", ".pipeline.config", ".pipeline.layout", ".guard", ".guard.cache", ".guard.conformal", ".guard.core",

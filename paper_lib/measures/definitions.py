@@ -95,14 +95,23 @@ def _torch_policy_js(action_params: th.Tensor, discrete: bool) -> th.Tensor:
     return pairwise.amax(dim=(0, 1))
 
 
+def _members_std(x: th.Tensor) -> th.Tensor:
+    """Population std over the members (axis 0) as mean, deviations, mean square: two passes, as stable as
+    torch's `std`, which reduces over a short leading axis ~40x slower (1.3 ms for (4, 1024, 6) here)."""
+    deviations = x - x.mean(0)
+    return deviations.square_().mean(0).sqrt_()
+
+
 def torch_measures(values: th.Tensor | None, action_params: th.Tensor | None, discrete: bool,
-                   wanted: tuple[str, ...] | None = None) -> dict[str, th.Tensor]:
+                   wanted: tuple[str, ...] | None = None, exact: bool = True) -> dict[str, th.Tensor]:
     """`all_measures` in torch: each wanted measure, shape (N,), from values (k, N) and action params (k, N, A).
 
     `wanted` defaults to every measure that applies (member measures need k > 1; max_prob and
     entropy need discrete actions); `values` (or `action_params`) may be None when no measure
-    of it is wanted.
+    of it is wanted. `exact` False takes the stds as `_members_std` (equal up to float rounding;
+    the inference "fast" path's); True keeps the committed scores' numbers bit for bit.
     """
+    std = (lambda x: x.std(0, correction=0)) if exact else _members_std
     k = (values if action_params is None else action_params).shape[0]
     if wanted is None:
         wanted = (MEMBER_MEASURES if k > 1 else ()) + (DISCRETE_ONLY if discrete else ())
@@ -110,9 +119,9 @@ def torch_measures(values: th.Tensor | None, action_params: th.Tensor | None, di
     probs = th.softmax(action_params, -1).mean(0) if discrete and set(wanted) & set(DISCRETE_ONLY) else None
     for name in wanted:
         if name == "value_std":
-            out[name] = values.std(0, correction=0)
+            out[name] = std(values)
         elif name == "policy_std":
-            out[name] = action_params.std(0, correction=0).mean(-1)
+            out[name] = std(action_params).mean(-1)
         elif name == "policy_js":
             out[name] = _torch_policy_js(action_params, discrete)
         elif name == "max_prob":

@@ -20,6 +20,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import is_image_space
 
 from paper_lib.measures import definitions as measures
+from paper_lib.methods.inference import check_path, fast_arithmetic
 from paper_lib.methods.policy import MemberActorCriticPolicy, check_finite, combine_actions, draw_state_seeds
 
 
@@ -108,12 +109,12 @@ def _state_seeds(policy: ActorCriticPolicy, n: int, seed: int | None) -> np.ndar
 
 
 def _batches(policy: ActorCriticPolicy, obs: np.ndarray, batch_size: int, seed: int | None, actor: bool = True,
-             critic: bool = True) -> Iterator[tuple[th.Tensor | None, th.Tensor | None]]:
+             critic: bool = True, path: str = "exact") -> Iterator[tuple[th.Tensor | None, th.Tensor | None]]:
     """(k, n, A) action params and (k, n) values of successive batches of `obs`, without autograd.
 
     A baseline policy is a single member (k = 1). The per-state seeds of MC methods are drawn
     for all states up front, so the batching cannot change them. A member policy skips the
-    output not asked for (None); its MC masks do not depend on that.
+    output not asked for (None); its MC masks do not depend on that. `path` is the lean path's (`inference.PATHS`).
     """
     seeds = _state_seeds(policy, len(obs), seed)
     policy.set_training_mode(False)
@@ -122,25 +123,25 @@ def _batches(policy: ActorCriticPolicy, obs: np.ndarray, batch_size: int, seed: 
             tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
             if isinstance(policy, MemberActorCriticPolicy):
                 yield policy.member_outputs_from_tensor(tensor, None if seeds is None else seeds[start:start + batch_size],
-                                                        actor=actor, critic=critic)
+                                                        actor=actor, critic=critic, path=path)
             else:
                 yield _single_member(policy, tensor)
 
 
 def member_outputs(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, batch_size: int = 1024,
-                   seed: int | None = None) -> MemberOutputs:
+                   seed: int | None = None, path: str = "exact") -> MemberOutputs:
     """All members on all states, in batches of `batch_size` states, one forward pass each.
 
     `observations` are what the policy sees (after VecNormalize, if the env used it). A
     baseline policy is returned as a single member (k = 1). MC methods sample per (member,
-    state) from per-state seeds drawn from `seed` (torch's global RNG when None).
+    state) from per-state seeds drawn from `seed` (torch's global RNG when None). `path`: see `uncertainty`.
     """
-    policy, seed = as_policy(policy, "member_outputs"), check_sample_seed(seed)
+    policy, seed, path = as_policy(policy, "member_outputs"), check_sample_seed(seed), check_path(path)
     discrete = isinstance(policy.action_space, spaces.Discrete)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     values, params = [], []
-    for pi, vf in _batches(policy, obs, batch_size, seed):
+    for pi, vf in _batches(policy, obs, batch_size, seed, path=path):
         values.append(vf.cpu().numpy())
         params.append(pi.cpu().numpy())
     return MemberOutputs(np.concatenate(values, axis=1), np.concatenate(params, axis=1), discrete)
@@ -156,7 +157,7 @@ def _single_member(policy: ActorCriticPolicy, obs: th.Tensor) -> tuple[th.Tensor
 
 
 def uncertainty(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, measures_wanted: tuple[str, ...] | None = None,
-                batch_size: int = 1024, seed: int | None = None) -> dict[str, np.ndarray]:
+                batch_size: int = 1024, seed: int | None = None, path: str = "exact") -> dict[str, np.ndarray]:
     """Every applicable measure, each of shape (N,).
 
     value_std, policy_std and policy_js need members; max_prob and entropy exist for discrete
@@ -164,8 +165,11 @@ def uncertainty(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndar
     member measure is an error. A baseline with continuous actions has no measure: {}.
     `seed` fixes the MC methods' samples (see `member_outputs`). The measures are computed in
     torch on each batch's member outputs (`measures.torch_measures`); only they become numpy.
+    `path` ("exact" or "fast", `inference.PATHS`): on batches of 64 states or more, "exact" gives the numbers the
+    committed scores were computed with, bit for bit (the scoring stage's default), "fast" the same up to float
+    rounding in about half the time (`act_with_uncertainty`, `predict` and the benchmark use it).
     """
-    policy, seed = as_policy(policy), check_sample_seed(seed)
+    policy, seed, path = as_policy(policy), check_sample_seed(seed), check_path(path)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     discrete = isinstance(policy.action_space, spaces.Discrete)
@@ -184,21 +188,23 @@ def uncertainty(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndar
         return {}  # a baseline with continuous actions: no measure applies (member-free detectors still do)
     parts: dict[str, list[th.Tensor]] = {name: [] for name in wanted}
     value_only = set(wanted) == {"value_std"}
-    for pi, vf in _batches(policy, obs, batch_size, seed, actor=not value_only, critic="value_std" in wanted):
-        for name, value in measures.torch_measures(vf, pi, discrete, wanted).items():
+    for pi, vf in _batches(policy, obs, batch_size, seed, actor=not value_only, critic="value_std" in wanted,
+                           path=path):
+        exact = not fast_arithmetic(path, (vf if pi is None else pi).shape[1])
+        for name, value in measures.torch_measures(vf, pi, discrete, wanted, exact).items():
             parts[name].append(value)
     return {name: th.cat(values).cpu().numpy() for name, values in parts.items()}
 
 
 def policy_features(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.ndarray, batch_size: int = 1024,
-                    seed: int | None = None) -> np.ndarray:
+                    seed: int | None = None, path: str = "exact") -> np.ndarray:
     """The policy's last hidden layer on N states, (N, H): the input of its action head.
 
     For member policies the members' features are averaged, so a member-free detector
     (Mahalanobis, kNN) sees one feature vector per state like it would for the baseline.
-    MC methods sample per (member, state), seeded like `member_outputs`.
+    MC methods sample per (member, state), seeded like `member_outputs`. `path`: see `uncertainty`.
     """
-    policy, seed = as_policy(policy, "policy_features"), check_sample_seed(seed)
+    policy, seed, path = as_policy(policy, "policy_features"), check_sample_seed(seed), check_path(path)
     batch_size = check_batch_size(batch_size)
     obs, _ = check_observations(policy, observations)
     seeds = _state_seeds(policy, len(obs), seed)
@@ -207,14 +213,15 @@ def policy_features(policy: ActorCriticPolicy | BaseAlgorithm, observations: np.
     with th.no_grad():
         for start in range(0, obs.shape[0], batch_size):
             tensor, _ = policy.obs_to_tensor(obs[start:start + batch_size])
-            chunks.append(_last_hidden(policy, tensor, None if seeds is None else seeds[start:start + batch_size])
+            chunks.append(_last_hidden(policy, tensor, None if seeds is None else seeds[start:start + batch_size], path)
                           .cpu().numpy())
     return np.concatenate(chunks)
 
 
-def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
+def _last_hidden(policy: ActorCriticPolicy, obs: th.Tensor, state_seeds: np.ndarray | None = None,
+                 path: str = "exact") -> th.Tensor:
     if isinstance(policy, MemberActorCriticPolicy):
-        return policy.last_hidden_from_tensor(obs, state_seeds).mean(0)
+        return policy.last_hidden_from_tensor(obs, state_seeds, path).mean(0)
     features = policy.extract_features(obs)
     if not policy.share_features_extractor:
         features = features[0]
@@ -227,7 +234,8 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
 
     The deployment call: an agent that acts and says how unsure it is, at the cost of one
     forward pass instead of `predict` plus `uncertainty` (two passes); the measures are
-    computed in torch on that pass's outputs.
+    computed in torch on that pass's outputs. It takes the "fast" path (see `uncertainty`), which on
+    fewer than 64 states (an agent acting) is the exact one, bit for bit.
     """
     if not isinstance(policy, MemberActorCriticPolicy):
         raise ValueError("act_with_uncertainty needs a member policy; a baseline has no member-based uncertainty")
@@ -236,11 +244,13 @@ def act_with_uncertainty(policy: MemberActorCriticPolicy, observation: np.ndarra
         policy.set_training_mode(False)
     tensor = _checked_to_tensor(policy, observation)
     discrete = isinstance(policy.action_space, spaces.Discrete)
-    with th.no_grad():
-        pi, vf = policy.member_outputs_from_tensor(tensor)
+    with th.inference_mode():  # no version counters or view tracking: a few us of a one-state call; only numpy leaves
+        pi, vf = policy.member_outputs_from_tensor(tensor, path="fast")
         actions = combine_actions(pi, policy, *policy.inference, deterministic=deterministic,
                                   **policy.inference_options).cpu().numpy()
-        scores = {name: value.cpu().numpy() for name, value in measures.torch_measures(vf, pi, discrete).items()}
+        exact = not fast_arithmetic("fast", len(observation))
+        measured = measures.torch_measures(vf, pi, discrete, exact=exact)
+        scores = {name: value.cpu().numpy() for name, value in measured.items()}
     actions = actions.reshape((-1, *policy.action_space.shape))
     if isinstance(policy.action_space, spaces.Box):  # np.clip, as SB3's predict; this form is faster on small arrays
         actions = np.minimum(np.maximum(actions, policy.action_space.low), policy.action_space.high)
@@ -251,5 +261,6 @@ def _checked_to_tensor(policy: ActorCriticPolicy, observation: np.ndarray) -> th
     """SB3's `obs_to_tensor` of a batch `check_observations` accepted; flat observations without
     its checks and copy, which cost more than a one-state forward pass's layers."""
     if observation.shape[1:] == policy.observation_space.shape and not is_image_space(policy.observation_space):
-        return th.as_tensor(observation, device=policy.device)
+        # SB3's `policy.device` walks the parameters (~5 us); this buffer moves with them
+        return th.as_tensor(observation, device=policy._buffers["_inference_mode"].device)
     return policy.obs_to_tensor(observation)[0]

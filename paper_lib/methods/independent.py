@@ -203,11 +203,12 @@ class IndependentEnsemblePolicy(MemberActorCriticPolicy):
 
     # --- the member-output interface ---------------------------------------------------------
     def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, *,
-                                   actor: bool = True, critic: bool = True
+                                   actor: bool = True, critic: bool = True, path: str = "exact"
                                    ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """All k members on every raw state: (k, N, A) action params and (k, N) values (None where not asked).
 
-        `state_seeds` is accepted for the member-policy interface; trained baselines sample nothing.
+        `state_seeds` and `path` are accepted for the member-policy interface; trained baselines sample nothing
+        and run their own SB3 modules.
         """
         pi, vf = self.mlp_extractor.members(obs, "all", actor=actor, critic=critic)
         return pi, (None if vf is None else vf.squeeze(-1))

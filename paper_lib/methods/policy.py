@@ -42,6 +42,8 @@ TIE_RULES = ("mean_prob", "random")
 #: What a sampled (deterministic=False) discrete vote does: sample from the members' averaged
 #: distribution (the paper's Table 1; default), or take the majority of each member's own sample.
 VOTE_SAMPLING = ("average", "member_votes")
+#: The buffers that hold the inference settings (saved with the model), in `_inference_settings`' order.
+_INFERENCE_BUFFERS = ("_inference_mode", "_inference_member", "_inference_ties", "_inference_vote_sampling")
 #: Largest per-state seed; seeds are drawn from torch's RNG (or a seeded generator) below it.
 _SEED_BOUND = 2**62
 #: The largest float32: the networks compute in float32, so a wider float beyond it becomes inf there.
@@ -206,32 +208,45 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
 
     @property
     def inference(self) -> tuple[str, int | None]:
-        mode, member = INFERENCE_MODES[int(self._inference_mode)], int(self._inference_member)
-        return mode, (None if member < 0 or mode != "single" else member)  # only "single" uses a member
+        return self._inference_settings()[0]
 
     @property
     def inference_options(self) -> dict[str, str]:
         """The discrete vote's tie rule and sampling rule, as `combine_actions` takes them."""
-        return {"ties": TIE_RULES[int(self._inference_ties)],
-                "vote_sampling": VOTE_SAMPLING[int(self._inference_vote_sampling)]}
+        return dict(self._inference_settings()[1])
+
+    def _inference_settings(self) -> tuple[tuple[str, int | None], dict[str, str]]:
+        """(mode, member) and the options, read from the buffers again only when one changed (set_inference,
+        load_state_dict): four int() reads of tensors cost as much as a layer of a one-state pass."""
+        buffers = tuple(self._buffers[name] for name in _INFERENCE_BUFFERS)
+        key = tuple((b.data_ptr(), b._version) for b in buffers)
+        cached = self.__dict__.get("_inference_cache")
+        if cached is None or cached[0] != key:
+            mode, member = INFERENCE_MODES[int(buffers[0])], int(buffers[1])
+            settings = ((mode, None if member < 0 or mode != "single" else member),  # only "single" uses a member
+                        {"ties": TIE_RULES[int(buffers[2])], "vote_sampling": VOTE_SAMPLING[int(buffers[3])]})
+            cached = self.__dict__["_inference_cache"] = (key, buffers, settings)
+        return cached[2]
 
     # --- member outputs ------------------------------------------------------------------
     def member_outputs_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, *,
-                                   actor: bool = True, critic: bool = True
+                                   actor: bool = True, critic: bool = True, path: str = "exact"
                                    ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """All k members on every state, one batched pass: (k, N, A) action params and (k, N) values.
 
         MC methods draw their masks per (member, state), from `state_seeds` (one per state) or,
         when None, from seeds drawn from torch's RNG. `actor` / `critic` False skip that output
-        (None). Without autograd this runs the lean inference path, else the modules themselves.
+        (None). Without autograd this runs the lean inference path (`path`: "exact" or "fast",
+        `inference.PATHS`), else the modules themselves.
         """
         seeds = self.state_seeds(obs.shape[0], state_seeds)
-        pi, vf = lean.members(self, obs, seeds, actor=actor, critic=critic)
+        pi, vf = lean.members(self, obs, seeds, actor=actor, critic=critic, path=path)
         return pi, (None if vf is None else vf.squeeze(-1))
 
-    def last_hidden_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None) -> th.Tensor:
+    def last_hidden_from_tensor(self, obs: th.Tensor, state_seeds: np.ndarray | None = None, path: str = "exact"
+                                ) -> th.Tensor:
         """(k, N, H): every member's last hidden layer (the action head's input), masks drawn as above."""
-        return lean.last_hidden_members(self, obs, self.state_seeds(obs.shape[0], state_seeds))
+        return lean.last_hidden_members(self, obs, self.state_seeds(obs.shape[0], state_seeds), path)
 
     @property
     def samples_members(self) -> bool:
@@ -254,7 +269,8 @@ class MemberActorCriticPolicy(ActorCriticPolicy):
         return per_state_masks(self.mlp_extractor, draw_state_seeds(n_states) if state_seeds is None else state_seeds)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        pi, _ = self.member_outputs_from_tensor(observation, critic=False)
+        # "fast": on fewer than COMPACT_MIN_STATES states (acting in envs) it is the exact path, bit for bit
+        pi, _ = self.member_outputs_from_tensor(observation, critic=False, path="fast")
         return combine_actions(pi, self, *self.inference, deterministic=deterministic, **self.inference_options)
 
     def set_training_mode(self, mode: bool) -> None:
