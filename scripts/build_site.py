@@ -77,6 +77,7 @@ html_extra_path = ["files"]  # every offered PNG and CSV also at its repository 
 html_favicon = "_static/favicon.svg"  # without one the browser asks for /favicon.ico, a 404 in the console
 html_context = {{"default_mode": "light"}}  # the theme's mode switch logs an error on a first visit without one
 html_css_files = ["results.css"]
+html_js_files = ["file_search.js"]  # after documentation_options.js, before the search page's searchtools.js
 html_copy_source = False  # the sources are in the repository; copying multi-MB notebooks again is waste
 html_show_sourcelink = False
 html_last_updated_fmt = None
@@ -114,6 +115,10 @@ details.provenance { margin-bottom: 1rem; font-size: 0.9rem; }
 #the-paper-s-claims-cell-by-cell h3 { font-size: 1.1rem; }
 #how-to-enable-uncertainty-estimation-in-ppo-reproduced > h1 { font-size: 2rem; }
 """
+#: Search from a page opened as a file (file://, no server): Sphinx finds the pages from searchindex.js, then fetches
+#: each hit's page for a summary, which the browser refuses for file:// URLs (a SEVERE console message per hit).
+#: Opened as a file, hits are listed with their titles and no summary; served, with summaries as usual.
+FILE_SEARCH_JS = ('if (window.location.protocol === "file:") { DOCUMENTATION_OPTIONS.SHOW_SEARCH_SUMMARY = false; }\n')
 #: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
 FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16"><rect width="16" height="16" rx="3" '
            'fill="#b7e4b0"/></svg>\n')
@@ -821,6 +826,7 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT, site_dir: Path = 
                                   footer=footer(root), secondary=secondary_sidebars(pages)),
         "_static/results.css": RESULTS_CSS,
         "_static/favicon.svg": FAVICON,
+        "_static/file_search.js": FILE_SEARCH_JS,
     }
     tables = table_files(profile, root)
     for rel, text in markdown.items():
@@ -903,7 +909,8 @@ def main(argv: list[str] | None = None) -> None:
     index = build()
     warnings = WARNINGS_FILE.read_text().count("WARNING") if WARNINGS_FILE.is_file() else 0
     print(f"site: {len(pages)} notebook pages and the docs in {time.monotonic() - start:.0f} s; open {index}"
-          f" (or serve it: .venv/bin/python -m http.server -d {SITE_DIR.relative_to(ROOT)}); "
+          f" (or serve it, for search hits with summaries: .venv/bin/python -m http.server -d "
+          f"{SITE_DIR.relative_to(ROOT)}); "
           f"{warnings} Sphinx warnings in {WARNINGS_FILE.relative_to(ROOT)}")
 
 

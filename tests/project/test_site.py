@@ -215,6 +215,23 @@ def test_search_finds_a_method_name(built, served, tmp_path):
     assert "found" in summary and any(urlparse(href).path.endswith("/docs/methods.html") for href in hits), (summary, hits)
 
 
+def test_search_works_from_a_page_opened_as_a_file(built, tmp_path):
+    """Opened as build/site/index.html (file://, no server), search finds a method name with a quiet console."""
+    require_browser()
+    with headless_chromium() as driver:
+        driver.get((built["site"] / "search.html").as_uri() + "?q=Masksembles")
+        summary = wait_for(lambda: driver.execute_script(
+            "const s = document.querySelector('#search-results .search-summary'); "
+            "return s && s.textContent.startsWith('Search finished') ? s.textContent : null"),
+            60, "Sphinx's search to finish for Masksembles from file://")
+        time.sleep(1)  # a summary fetch refused by the browser logs after the count is shown
+        hits = driver.execute_script(
+            "return Array.from(document.querySelectorAll('#search-results ul.search li a')).map(a => a.href)")
+        severe = [entry["message"] for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
+    assert "found" in summary and any(href.endswith("/docs/methods.html") for href in hits), (summary, hits)
+    assert not severe, severe[:3]
+
+
 #: Pages with little text by design: Sphinx's index of terms and the search page before a query.
 SPARSE_PAGES = ("genindex.html", "search.html")
 #: What a page must show to count as read: characters of visible text in its article, and its article's height.
