@@ -97,8 +97,8 @@ def legible(fig: Figure, dpi: float = DPI) -> float:
     tick labels, legends and suptitles below the floor for this figure's width are drawn at the floor; larger
     text keeps its size. Where even the default size is below the floor (a strip over 14 inches wide), the figure
     grows taller by the same factor, so its panels keep their share of it. Constrained layout makes room when the
-    figure is drawn; the suptitle is centred over the panels and wrapped to their width (`_fit_suptitle`); x tick
-    labels that now overlap turn upright (`_untangle_tick_labels`).
+    figure is drawn; the suptitle is centred over the panels and wrapped to their width (`_fit_suptitle`), a panel
+    title to its panel's, and x tick labels that now overlap turn upright (`_untangle_tick_labels`).
     """
     from matplotlib.text import Text
 
@@ -123,11 +123,20 @@ def legible(fig: Figure, dpi: float = DPI) -> float:
 
 
 def _untangle_tick_labels(fig: Figure) -> None:
-    """Turn a panel's x tick labels upright where, at their legible size, neighbours overlap (long category names).
+    """At their legible size, wrap a panel title wider than its panel, and turn a panel's x tick labels upright
+    where neighbours overlap (long category names).
 
-    Upright, a label takes its line height across, not its length; a reader tilts the head rather than guesses.
+    A title then stays over its own panel; upright, a label takes its line height across, not its length.
     """
+    import textwrap
+
     fig.draw_without_rendering()
+    for ax in fig.axes:
+        span, title = ax.get_window_extent().width, ax.title
+        wide = title.get_window_extent().width if title.get_text() else 0
+        if wide > span > 0:
+            text = " ".join(title.get_text().split())
+            title.set_text(textwrap.fill(text, width=max(10, int(len(text) * span / wide * 0.95))))
     for ax in fig.axes:
         boxes = sorted((label.get_window_extent() for label in ax.get_xticklabels()
                         if label.get_visible() and label.get_text()), key=lambda box: box.x0)

@@ -77,3 +77,22 @@ def test_four_pareto_panels_wrap_into_two_rows():
     fig = front_scatter(df)
     rows = {round(ax.get_position().y0, 2) for ax in fig.axes}
     assert len(fig.axes) == 4 and len(rows) == 2 and fig.get_figwidth() < 13
+
+
+def test_a_long_panel_title_wraps_to_its_panel_and_crowded_tick_labels_stand_upright(tmp_path):
+    """Raised to the legible size, text must not run into its neighbour: a title wider than its panel wraps,
+    x tick labels that overlap turn upright; labels that fit stay as drawn."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(16, 3), layout="constrained")
+    FigureCanvasAgg(fig)
+    crowded, roomy = fig.subplots(1, 2)
+    crowded.set_xticks(range(6), [f"HalfCheetah masksembles {i}" for i in range(6)])
+    crowded.set_title("Atari, value_std (1 seed x 4 envs, no band: one seed per env) " * 3, fontsize="small")
+    roomy.set_xticks(range(3), ["a", "b", "c"])
+    plots.save_figure(fig, tmp_path / "crowded")
+    assert crowded.title.get_text().count("\n") >= 1
+    assert crowded.title.get_window_extent().width <= crowded.get_window_extent().width
+    assert {label.get_rotation() for label in crowded.get_xticklabels()} == {90}
+    assert {label.get_rotation() for label in roomy.get_xticklabels()} == {0}
