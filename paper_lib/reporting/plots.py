@@ -128,26 +128,32 @@ def _untangle_tick_labels(fig: Figure) -> None:
 
     A title then stays over its own panel; upright, a label takes its line height across, not its length.
     """
-    import textwrap
-
     fig.draw_without_rendering()
     for ax in fig.axes:
-        span, title = ax.get_window_extent().width, ax.title
+        title, spec = ax.title, ax.get_subplotspec()
+        # the panel's cell of the grid, not the axes box: an image's axes shrink to its aspect, the cell does not
+        span = spec.get_position(fig).width * fig.bbox.width if spec is not None else ax.get_window_extent().width
         wide = title.get_window_extent().width if title.get_text() else 0
         if wide > span > 0:
-            text = " ".join(title.get_text().split())
-            title.set_text(textwrap.fill(text, width=max(10, int(len(text) * span / wide * 0.95))))
+            title.set_text(_rewrapped(title.get_text(), span / wide))
     for ax in fig.axes:
         boxes = sorted((label.get_window_extent() for label in ax.get_xticklabels()
                         if label.get_visible() and label.get_text()), key=lambda box: box.x0)
         if any(left.x1 > right.x0 for left, right in zip(boxes, boxes[1:])):
             ax.tick_params(axis="x", labelrotation=90)
 
+
+def _rewrapped(text: str, shrink: float) -> str:
+    """`text` wrapped anew so its longest line is `shrink` (< 1) times as wide as now (widths by character count)."""
+    import textwrap
+
+    longest = max(len(line) for line in text.splitlines())
+    return textwrap.fill(" ".join(text.split()), width=max(10, int(longest * shrink * 0.95)))
+
+
 def _fit_suptitle(fig: Figure) -> None:
     """Centre the suptitle over the panels and wrap it to their width, so a larger font neither runs off the
     figure nor into a legend beside the panels (matplotlib's own wrap uses the whole figure's width)."""
-    import textwrap
-
     title = getattr(fig, "_suptitle", None)  # Figure.suptitle's Text; matplotlib has no public getter for it
     axes = [ax.get_position() for ax in fig.axes if ax.get_visible()]
     if title is None or not title.get_text() or not axes:
@@ -158,8 +164,7 @@ def _fit_suptitle(fig: Figure) -> None:
     title.set_x((left + right) / 2)
     width = title.get_window_extent().width / fig.bbox.width  # as a share of the figure, like the panels' span
     if width > right - left:
-        text = " ".join(title.get_text().split())
-        title.set_text(textwrap.fill(text, width=max(20, int(len(text) * (right - left) / width * 0.95))))
+        title.set_text(_rewrapped(title.get_text(), (right - left) / width))
 
 
 def save_figure(fig: Figure, stem: str | os.PathLike[str], dpi: int = DPI) -> dict[str, Path]:
@@ -363,8 +368,9 @@ def timeline(df: pd.DataFrame, event_step: float | None = None, reference: float
     return fig
 
 
-#: Characters of a panel title per inch of panel at 1 pt (76 / size: 11 characters an inch at 'x-small', 6.9 pt).
-CHARS_PER_INCH_AT_1PT = 76
+#: Characters of a panel title per inch of panel at 1 pt (100 / size: an average character 0.72 em wide, with room
+#: for capitals; `legible` re-wraps a title still wider than its panel).
+CHARS_PER_INCH_AT_1PT = 100
 
 
 def image_grid(images: list, titles: list[str], ncols: int | None = None, panel_width: float = 2.4,
@@ -379,16 +385,19 @@ def image_grid(images: list, titles: list[str], ncols: int | None = None, panel_
     nrows = -(-len(images) // ncols)
     first = images[0]
     aspect = first.shape[0] / first.shape[1]
-    fig = Figure(figsize=(panel_width * ncols, (panel_width * aspect + 0.55) * nrows), layout="constrained")
+    size = min_font_pt(panel_width * ncols)  # the site's legible size: titles wrap at the panel's width in it
+    wrapped = [textwrap.fill(title, width=int(panel_width * CHARS_PER_INCH_AT_1PT / size)) for title in titles]
+    lines = max(text.count("\n") + 1 for text in wrapped)
+    title_height = lines * size * 1.3 / 72 + 0.2  # inches above each image for its title: the images keep their size
+    fig = Figure(figsize=(panel_width * ncols, (panel_width * aspect + title_height) * nrows), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax in axes[len(images):]:
         ax.set_axis_off()
-    size = min_font_pt(fig.get_figwidth())  # the site's legible size: a title wraps at the panel's width in it
-    for ax, image, title in zip(axes, images, titles):
+    for ax, image, title in zip(axes, images, wrapped):
         ax.set(xticks=[], yticks=[])  # the frame stays: a white image is still seen
         ax.imshow(image, cmap="gray" if image.ndim == 2 else None, vmin=0, vmax=255, interpolation="nearest")
-        ax.set_title(textwrap.fill(title, width=int(panel_width * CHARS_PER_INCH_AT_1PT / size)), fontsize=size)
+        ax.set_title(title, fontsize=size)
     if suptitle:
         fig.suptitle(suptitle, fontsize="small")
     return fig
