@@ -15,6 +15,7 @@ to a committed executed notebook goes to its page; one to any other repository f
 - one page per executed notebook, headed by where it comes from (notebook, committed copy, DVC stage, read
   from dvc.yaml: never typed by hand); code hidden behind a toggle; each figure its notebook's source declares
   (cell metadata `figures`) numbered, captioned, with alt text and its PNG; each committed table with its CSV;
+  tables made to fit the column at 1400 px (scripts/site_tables.py: split, numbers whole, text wrapped);
 - every page's foot names the commit it was built from;
 - docs/results.md (every generated table), docs/deviations.md, docs/study.md and the rest of the manual.
 
@@ -37,6 +38,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import unquote
 
 import yaml
+from site_tables import fit_dataframe, fit_tables
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -75,6 +77,7 @@ html_extra_path = ["files"]  # every offered PNG and CSV also at its repository 
 html_favicon = "_static/favicon.svg"  # without one the browser asks for /favicon.ico, a 404 in the console
 html_context = {{"default_mode": "light"}}  # the theme's mode switch logs an error on a first visit without one
 html_css_files = ["results.css"]
+html_js_files = ["file_search.js"]  # after documentation_options.js, before the search page's searchtools.js
 html_copy_source = False  # the sources are in the repository; copying multi-MB notebooks again is waste
 html_show_sourcelink = False
 html_last_updated_fmt = None
@@ -82,16 +85,16 @@ suppress_warnings = ["myst.header"]  # docs/results.md's pasted tables sit under
 '''
 
 
-#: Tables fit their column: numbers never break (a number split over two lines misreads), text wraps (a claim or an
-#: evidence sentence on one line made the claims table 5,000 px wide); a table still wider than the column scrolls
-#: inside its own box (`.table-wrapper`, MyST-NB's and ours), never the page. Figures fill the column; the verdict
+#: Tables fit their column: text wraps (a claim or an evidence sentence on one line made the claims table 5,000 px
+#: wide), numbers never break (a number split over two lines misreads: site_tables.py joins each number's parts
+#: with no-break spaces, so no cell needs `nowrap`, which made 10 of 73 tables scroll at 1400 px); a table still
+#: wider than the column scrolls inside its own box (`.table-wrapper`, MyST-NB's and ours), never the page. Figures fill the column; the verdict
 #: matrix's colours are defined here, once.
 RESULTS_CSS = """.bd-page-width { max-width: 120rem; }
 .bd-main .bd-content .bd-article-container { max-width: 100%; }
 .bd-article table { display: block; max-width: 100%; overflow-x: auto; font-size: 0.85rem; }
 .bd-article table td, .bd-article table th { padding: 0.2rem 0.3rem; font-size: 0.8rem; }
 .bd-article table td, .bd-article table th { white-space: normal; overflow-wrap: break-word; vertical-align: top; }
-.bd-article table td.text-right, .bd-article table.dataframe td { white-space: nowrap; }
 .bd-article code.literal, .bd-article code.literal span.pre { white-space: normal; overflow-wrap: anywhere; }
 .bd-article code.download, .bd-article code.download span.pre { white-space: nowrap; overflow-wrap: normal; }
 .bd-article pre { overflow-x: auto; max-width: 100%; }
@@ -112,6 +115,10 @@ details.provenance { margin-bottom: 1rem; font-size: 0.9rem; }
 #the-paper-s-claims-cell-by-cell h3 { font-size: 1.1rem; }
 #how-to-enable-uncertainty-estimation-in-ppo-reproduced > h1 { font-size: 2rem; }
 """
+#: Search from a page opened as a file (file://, no server): Sphinx finds the pages from searchindex.js, then fetches
+#: each hit's page for a summary, which the browser refuses for file:// URLs (a SEVERE console message per hit).
+#: Opened as a file, hits are listed with their titles and no summary; served, with summaries as usual.
+FILE_SEARCH_JS = ('if (window.location.protocol === "file:") { DOCUMENTATION_OPTIONS.SHOW_SEARCH_SUMMARY = false; }\n')
 #: The site's icon: a square in the colour of a verdict that holds (no binary file in the repository).
 FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16"><rect width="16" height="16" rx="3" '
            'fill="#b7e4b0"/></svg>\n')
@@ -287,14 +294,16 @@ def figure_number(page: NotebookPage, index: int) -> str:
     return f"Figure {int(number.group()) if number else page.name}.{index}"
 
 
-#: Figures are drawn at 150 dpi: shown at half their pixel width, a 10 pt title is about 10 px high (readable) and
-#: a small figure is not blown up to the column's width; a wide one is capped by the column (CSS max-width).
-DISPLAY_SCALE = 0.5
-
-
 def display_width(png: bytes) -> int:
-    """The width in CSS px to show a PNG at: DISPLAY_SCALE of its pixel width (read from its IHDR header)."""
+    """The width in CSS px to show a PNG at: DISPLAY_SCALE of its pixel width (read from its IHDR header).
+
+    Figures are drawn at 150 dpi: shown at half their pixel width, a 10 pt title is about 10 px high (readable) and
+    a small figure is not blown up to the column's width; a wide one is capped by the column (CSS max-width).
+    paper_lib.reporting.display holds the scale, and the fonts the figures are drawn with follow from it.
+    """
     import struct
+
+    from paper_lib.reporting.display import DISPLAY_SCALE
 
     if png[:8] != b"\x89PNG\r\n\x1a\n":
         raise ValueError("not a PNG")
@@ -495,11 +504,12 @@ def page_notebook(page: NotebookPage, profile: str, root: Path = ROOT) -> tuple[
                 out = nbformat.v4.new_output("display_data", data={"text/markdown": figure_markdown(
                     page, count, figure, site_path)})
             elif "text/html" in data and "dataframe" in data["text/html"]:
-                out = nbformat.v4.new_output("display_data", data={**data, "text/html": round_html_cells(data["text/html"])})
+                shown_html = fit_dataframe(round_html_cells(data["text/html"]))  # rounded, wrapped, split if wide
+                out = nbformat.v4.new_output("display_data", data={**data, "text/html": shown_html})
             elif "text/markdown" in data and "|" in data["text/markdown"]:
                 text = data["text/markdown"]
                 committed = tables.get(text.strip())
-                shown = dash_nan_tables(text)
+                shown = dash_nan_tables(fit_tables(text))
                 extra = ""
                 if committed is not None and committed.with_suffix(".csv").is_file():
                     csv = committed.with_suffix(".csv")
@@ -816,11 +826,12 @@ def assemble(source_dir: Path = SOURCE_DIR, root: Path = ROOT, site_dir: Path = 
                                   footer=footer(root), secondary=secondary_sidebars(pages)),
         "_static/results.css": RESULTS_CSS,
         "_static/favicon.svg": FAVICON,
+        "_static/file_search.js": FILE_SEARCH_JS,
     }
     tables = table_files(profile, root)
     for rel, text in markdown.items():
         text, offered = offer_csvs(text, tables, root)
-        wanted[rel] = dash_nan_tables(site_links(text, rel, sources, profile, root))
+        wanted[rel] = dash_nan_tables(fit_tables(site_links(text, rel, sources, profile, root)))
         wanted.update(offered)
     shown: dict[str, str] = {}  # committed CSV -> the page that shows its table
     for page in pages:
@@ -898,7 +909,8 @@ def main(argv: list[str] | None = None) -> None:
     index = build()
     warnings = WARNINGS_FILE.read_text().count("WARNING") if WARNINGS_FILE.is_file() else 0
     print(f"site: {len(pages)} notebook pages and the docs in {time.monotonic() - start:.0f} s; open {index}"
-          f" (or serve it: .venv/bin/python -m http.server -d {SITE_DIR.relative_to(ROOT)}); "
+          f" (or serve it, for search hits with summaries: .venv/bin/python -m http.server -d "
+          f"{SITE_DIR.relative_to(ROOT)}); "
           f"{warnings} Sphinx warnings in {WARNINGS_FILE.relative_to(ROOT)}")
 
 

@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 
 from paper_lib.common.frames import require_columns
 from paper_lib.common.io import atomic_path
+from paper_lib.reporting.display import DPI, min_font_pt
 
 PANEL_SIZE = (4.0, 3.2)  # inches per panel
 #: Seed of seaborn's bootstrap confidence intervals (its `seed=`) and of strip-plot jitter (`seeded_jitter`).
@@ -83,19 +84,104 @@ def _keep_last_legend(axes: list, outside: bool = False) -> None:
         sns.move_legend(axes[-1], "upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
 
 
-def save_figure(fig: Figure, stem: str | os.PathLike[str], dpi: int = 150) -> dict[str, Path]:
+#: The PNG text field (tEXt) where `save_figure` records the smallest font size drawn, in points: with the PNG's width
+#: and dpi it gives the size that text shows at on the site (`display.displayed_font_px`), read without redrawing.
+SMALLEST_FONT_KEY = "Smallest font (pt)"
+
+
+def legible(fig: Figure, dpi: float = DPI) -> float:
+    """Raise every text of ``fig`` smaller than the site needs to ``display.min_font_pt``; return the smallest size.
+
+    The site shows a figure at half its pixel width, capped by its column, so a wide multi-panel figure (a 16-inch
+    ROC grid, a 21-inch strip) shows matplotlib's 10 pt at 9 px or less and 'x-small' at 5 px. Titles, labels,
+    tick labels, legends and suptitles below the floor for this figure's width are drawn at the floor; larger
+    text keeps its size. Where even the default size is below the floor (a strip over 14 inches wide), the figure
+    grows taller by the same factor, so its panels keep their share of it. Constrained layout makes room when the
+    figure is drawn; the suptitle is centred over the panels and wrapped to their width (`_fit_suptitle`), a panel
+    title to its panel's, and x tick labels that now overlap turn upright (`_untangle_tick_labels`).
+    """
+    from matplotlib.text import Text
+
+    import matplotlib as mpl
+
+    floor = round(min_font_pt(fig.get_figwidth(), dpi), 2)
+    grown = floor / mpl.rcParams["font.size"]
+    if grown > 1:  # a figure so wide that even the default size is too small: taller by as much as its text grows
+        fig.set_figheight(fig.get_figheight() * grown)
+    fig.draw_without_rendering()  # tick labels exist only once the figure has been drawn
+    for ax in fig.axes:
+        for axis, labels in (("x", ax.get_xticklabels(which="both")), ("y", ax.get_yticklabels(which="both"))):
+            if any(label.get_fontsize() < floor for label in labels):
+                ax.tick_params(axis=axis, which="both", labelsize=floor)  # ticks made at the next draw too
+    texts = [t for t in fig.findobj(Text) if t.get_text()]
+    for text in texts:
+        if text.get_fontsize() < floor:
+            text.set_fontsize(floor)
+    _fit_suptitle(fig)
+    _untangle_tick_labels(fig)
+    return min((t.get_fontsize() for t in texts if t.get_visible()), default=floor)
+
+
+def _untangle_tick_labels(fig: Figure) -> None:
+    """At their legible size, wrap a panel title wider than its panel, and turn a panel's x tick labels upright
+    where neighbours overlap (long category names).
+
+    A title then stays over its own panel; upright, a label takes its line height across, not its length.
+    """
+    fig.draw_without_rendering()
+    for ax in fig.axes:
+        title, spec = ax.title, ax.get_subplotspec()
+        # the panel's cell of the grid, not the axes box: an image's axes shrink to its aspect, the cell does not
+        span = spec.get_position(fig).width * fig.bbox.width if spec is not None else ax.get_window_extent().width
+        wide = title.get_window_extent().width if title.get_text() else 0
+        if wide > span > 0:
+            title.set_text(_rewrapped(title.get_text(), span / wide))
+    for ax in fig.axes:
+        boxes = sorted((label.get_window_extent() for label in ax.get_xticklabels()
+                        if label.get_visible() and label.get_text()), key=lambda box: box.x0)
+        if any(left.x1 > right.x0 for left, right in zip(boxes, boxes[1:])):
+            ax.tick_params(axis="x", labelrotation=90)
+
+
+def _rewrapped(text: str, shrink: float) -> str:
+    """`text` wrapped anew so its longest line is `shrink` (< 1) times as wide as now (widths by character count)."""
+    import textwrap
+
+    longest = max(len(line) for line in text.splitlines())
+    return textwrap.fill(" ".join(text.split()), width=max(10, int(longest * shrink * 0.95)))
+
+
+def _fit_suptitle(fig: Figure) -> None:
+    """Centre the suptitle over the panels and wrap it to their width, so a larger font neither runs off the
+    figure nor into a legend beside the panels (matplotlib's own wrap uses the whole figure's width)."""
+    title = getattr(fig, "_suptitle", None)  # Figure.suptitle's Text; matplotlib has no public getter for it
+    axes = [ax.get_position() for ax in fig.axes if ax.get_visible()]
+    if title is None or not title.get_text() or not axes:
+        return
+    fig.draw_without_rendering()  # the panels' places and the title's extent at its new size
+    axes = [ax.get_position() for ax in fig.axes if ax.get_visible()]
+    left, right = min(box.x0 for box in axes), max(box.x1 for box in axes)
+    title.set_x((left + right) / 2)
+    width = title.get_window_extent().width / fig.bbox.width  # as a share of the figure, like the panels' span
+    if width > right - left:
+        title.set_text(_rewrapped(title.get_text(), (right - left) / width))
+
+
+def save_figure(fig: Figure, stem: str | os.PathLike[str], dpi: int = DPI) -> dict[str, Path]:
     """Write ``stem``.png (``dpi``) and ``stem``.pdf atomically, then close the figure.
 
-    The PDF's CreationDate and the PNG's Software tag are dropped so that re-running a pipeline
-    with the same inputs reproduces both files byte for byte, across matplotlib versions too
-    (PNG from Agg carries no timestamp).
+    Its text is first made legible where the site shows it (`legible`), and the PNG records the smallest font
+    size (SMALLEST_FONT_KEY). The PDF's CreationDate and the PNG's Software tag are dropped so that re-running a
+    pipeline with the same inputs reproduces both files byte for byte, across matplotlib versions too (PNG from
+    Agg carries no timestamp).
     """
     if not isinstance(fig, Figure):
         raise ValueError(f"save_figure: expected a matplotlib Figure, got {type(fig).__name__}.")
     paths = {"png": Path(f"{os.fspath(stem)}.png"), "pdf": Path(f"{os.fspath(stem)}.pdf")}
     try:
+        smallest = legible(fig, dpi)
         with atomic_path(paths["png"]) as tmp:
-            fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
+            fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None, SMALLEST_FONT_KEY: f"{smallest:.2f}"})
         with atomic_path(paths["pdf"]) as tmp:
             fig.savefig(tmp, format="pdf", metadata={"CreationDate": None})
     finally:
@@ -120,7 +206,8 @@ def show_figure(fig: Figure, stem: str | os.PathLike[str] | None = None, width: 
     if not isinstance(fig, Figure):
         raise ValueError(f"show_figure: expected a matplotlib Figure, got {type(fig).__name__}.")
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=150, metadata={"Software": None})
+    legible(fig)
+    fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
     plt.close(fig)
     display(Image(data=buffer.getvalue(), width=width))
 
@@ -281,6 +368,11 @@ def timeline(df: pd.DataFrame, event_step: float | None = None, reference: float
     return fig
 
 
+#: Characters of a panel title per inch of panel at 1 pt (100 / size: an average character 0.72 em wide, with room
+#: for capitals; `legible` re-wraps a title still wider than its panel).
+CHARS_PER_INCH_AT_1PT = 100
+
+
 def image_grid(images: list, titles: list[str], ncols: int | None = None, panel_width: float = 2.4,
                suptitle: str | None = None) -> Figure:
     """Images (H, W, 3) RGB or (H, W) grey in a grid, each with its (wrapped) title; axes hidden."""
@@ -293,15 +385,19 @@ def image_grid(images: list, titles: list[str], ncols: int | None = None, panel_
     nrows = -(-len(images) // ncols)
     first = images[0]
     aspect = first.shape[0] / first.shape[1]
-    fig = Figure(figsize=(panel_width * ncols, (panel_width * aspect + 0.55) * nrows), layout="constrained")
+    size = min_font_pt(panel_width * ncols)  # the site's legible size: titles wrap at the panel's width in it
+    wrapped = [textwrap.fill(title, width=int(panel_width * CHARS_PER_INCH_AT_1PT / size)) for title in titles]
+    lines = max(text.count("\n") + 1 for text in wrapped)
+    title_height = lines * size * 1.3 / 72 + 0.2  # inches above each image for its title: the images keep their size
+    fig = Figure(figsize=(panel_width * ncols, (panel_width * aspect + title_height) * nrows), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax in axes[len(images):]:
         ax.set_axis_off()
-    for ax, image, title in zip(axes, images, titles):
+    for ax, image, title in zip(axes, images, wrapped):
         ax.set(xticks=[], yticks=[])  # the frame stays: a white image is still seen
         ax.imshow(image, cmap="gray" if image.ndim == 2 else None, vmin=0, vmax=255, interpolation="nearest")
-        ax.set_title(textwrap.fill(title, width=int(panel_width * 11)), fontsize="x-small")
+        ax.set_title(title, fontsize=size)
     if suptitle:
         fig.suptitle(suptitle, fontsize="small")
     return fig
@@ -367,7 +463,8 @@ def performance_profiles(df: pd.DataFrame, xlabel: str, reference: float | None 
     return fig
 
 
-__all__ = ["save_figure", "show_figure", "roc_curves", "uncertainty_over_time", "training_curves", "normalized_bars",
+__all__ = ["save_figure", "show_figure", "legible", "roc_curves", "uncertainty_over_time", "training_curves",
+           "normalized_bars",
            "timeline", "image_grid", "pareto_scatter", "performance_profiles"]
 
 

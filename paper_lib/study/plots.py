@@ -44,14 +44,20 @@ def _methods(df: pd.DataFrame) -> list[str]:
     return [m for m in METHODS if m in present]
 
 
-def front_scatter(df: pd.DataFrame, panel: str = "env") -> Figure:
+def front_scatter(df: pd.DataFrame, panel: str = "env", max_columns: int = 2) -> Figure:
     """Reward vs AUROC of every trial, one panel per value of `panel`; each method's Pareto front joined and ringed.
 
-    Expects COMPLETE trials with columns reward, auroc, method, is_pareto and `panel`.
+    Expects COMPLETE trials with columns reward, auroc, method, is_pareto and `panel`. Panels wrap after
+    `max_columns`: four envs in one row made a 17-inch strip that the results site showed 190 px high, its text
+    at 8 px (issue 68); two rows of two show at half size, legible.
     """
     require_columns(df, ["reward", "auroc", "method", "is_pareto", panel], "front_scatter")
     values = list(pd.unique(df[panel]))
-    fig, axes = _figure(1, max(1, len(values)))
+    n_cols = max(1, min(len(values), max_columns))
+    fig, axes = _figure(-(-max(1, len(values)) // n_cols), n_cols)
+    for ax in axes[len(values):]:
+        fig.delaxes(ax)
+    axes = axes[: len(values)]
     for ax, value in zip(axes, values):
         sub = df[df[panel] == value]
         for method in _methods(sub):

@@ -5,10 +5,11 @@ and walked in headless chromium: every page loads, every image loads, every inte
 resolves, nothing is fetched from outside the site, and Sphinx's search finds a method name.
 
 What a reader sees is checked in the browser too, not in the HTML: each page shows a minimum of visible text and
-height, no page scrolls sideways at 1400 px or 400 px, each page shows the figures its notebook's *source* declares
+height, no page scrolls sideways at 1400 px or 400 px, no table scrolls sideways inside its own box at 1400 px, each page shows the figures its notebook's *source* declares
 (not its executed copy, which could have lost one), the console has no SEVERE message, and the home page's verdict
-matrix is whole inside the first screen at 1400 px. Two mutation tests show these checks see what they claim to:
-a stylesheet that blanks every page, and an executed notebook that lost a figure, both fail them.
+matrix is whole inside the first screen at 1400 px. Mutation tests show these checks see what they claim to: a
+stylesheet that blanks every page, one that keeps every table cell on one line, and an executed notebook that lost
+a figure, all fail them.
 """
 
 from __future__ import annotations
@@ -214,11 +215,31 @@ def test_search_finds_a_method_name(built, served, tmp_path):
     assert "found" in summary and any(urlparse(href).path.endswith("/docs/methods.html") for href in hits), (summary, hits)
 
 
+def test_search_works_from_a_page_opened_as_a_file(built, tmp_path):
+    """Opened as build/site/index.html (file://, no server), search finds a method name with a quiet console."""
+    require_browser()
+    with headless_chromium() as driver:
+        driver.get((built["site"] / "search.html").as_uri() + "?q=Masksembles")
+        summary = wait_for(lambda: driver.execute_script(
+            "const s = document.querySelector('#search-results .search-summary'); "
+            "return s && s.textContent.startsWith('Search finished') ? s.textContent : null"),
+            60, "Sphinx's search to finish for Masksembles from file://")
+        time.sleep(1)  # a summary fetch refused by the browser logs after the count is shown
+        hits = driver.execute_script(
+            "return Array.from(document.querySelectorAll('#search-results ul.search li a')).map(a => a.href)")
+        severe = [entry["message"] for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
+    assert "found" in summary and any(href.endswith("/docs/methods.html") for href in hits), (summary, hits)
+    assert not severe, severe[:3]
+
+
 #: Pages with little text by design: Sphinx's index of terms and the search page before a query.
 SPARSE_PAGES = ("genindex.html", "search.html")
 #: What a page must show to count as read: characters of visible text in its article, and its article's height.
 MIN_TEXT_CHARS = 300
 MIN_HEIGHT_PX = 400
+#: The window width from which every table fits its column (no sideways scroll inside its box): a desktop's 1400 px.
+#: Narrower (a phone's 400 px) a wide table scrolls inside its box, never the page.
+TABLES_FIT_AT = 1400
 #: What the reader sees of one page, measured in the browser (visibility and layout, not the HTML's content).
 READER_JS = """
 const article = document.querySelector('.bd-article');
@@ -226,6 +247,16 @@ const seen = article && article.checkVisibility({checkOpacity: true, checkVisibi
 const figures = seen ? Array.from(article.querySelectorAll('img')).filter(i => {
   const box = i.getBoundingClientRect();
   return box.width > 50 && box.height > 50 && i.checkVisibility({checkOpacity: true, checkVisibilityCSS: true});
+}) : [];
+// Each table's sideways scroll inside its own box: the table's, or a wrapper's that holds it alone (the theme's
+// .pst-scrollable-table-container, a DataFrame's <div>), in px; with the table's first header cells, to name it.
+const tables = seen ? Array.from(article.querySelectorAll('table')).map(t => {
+  let over = 0;
+  for (let e = t; e && e !== article && (e === t || e.querySelectorAll('table').length === 1); e = e.parentElement)
+    over = Math.max(over, e.scrollWidth - e.clientWidth);
+  const head = t.querySelector('tr');
+  const name = head ? head.innerText.replace(/[\\u200b\\u2060]/g, '').replace(/\\s+/g, ' ').trim() : '';
+  return {over, head: name.slice(0, 60)};
 }) : [];
 const matrix = document.querySelector('#verdicts table');
 const headline = document.querySelector('#headline-figure img');
@@ -235,6 +266,7 @@ return {
   height: seen ? article.getBoundingClientRect().height : 0,
   sideways: document.documentElement.scrollWidth - document.documentElement.clientWidth,
   figures: figures.length,
+  tables,
   matrix: box && {bottom: box.bottom, viewport: window.innerHeight, hidden: matrix.scrollWidth - matrix.clientWidth,
                   cells: matrix.querySelectorAll('td a').length,
                   figure: headline ? window.innerHeight - headline.getBoundingClientRect().top : null},
@@ -252,8 +284,9 @@ def expected_figures(built: dict) -> dict[str, int]:
 def reader_problems(driver, url: str, figures: int | None, css: str = "") -> list[str]:
     """What a reader would miss on `url` at the window's current width (`css`: a stylesheet injected first).
 
-    Too little visible text or height (a blank page), sideways scrolling of the whole page, a figure count other
-    than `figures` (None: not checked), a SEVERE console message.
+    Too little visible text or height (a blank page), sideways scrolling of the whole page, from TABLES_FIT_AT px a
+    table that scrolls sideways inside its box, a figure count other than `figures` (None: not checked), a SEVERE
+    console message.
     """
     driver.get(url)
     wait_for(lambda: driver.execute_script("return document.readyState") == "complete", 60, f"{url} to load")
@@ -269,6 +302,9 @@ def reader_problems(driver, url: str, figures: int | None, css: str = "") -> lis
                         f"high (at least {MIN_TEXT_CHARS} and {MIN_HEIGHT_PX})")
     if seen["sideways"] > 0:
         problems.append(f"{page} at {width} px: the page scrolls {seen['sideways']} px sideways")
+    if width >= TABLES_FIT_AT:
+        problems += [f"{page} at {width} px: table {n} ({table['head']}) scrolls {table['over']} px sideways in its box"
+                     for n, table in enumerate(seen["tables"], start=1) if table["over"] > 0]
     if figures is not None and seen["figures"] != figures:
         problems.append(f"{page} at {width} px: {seen['figures']} figures shown, its notebook declares {figures}")
     problems += [f"{page}: console {entry['level']}: {entry['message']}" for entry in driver.get_log("browser")
@@ -277,7 +313,8 @@ def reader_problems(driver, url: str, figures: int | None, css: str = "") -> lis
 
 
 def test_every_page_shows_a_reader_its_text_and_figures_without_sideways_scroll(built, served, tmp_path):
-    """At 1400 px and at 400 px: visible text and height, no page-level sideways scroll, the declared figures, a quiet console."""
+    """At 1400 px and at 400 px: visible text and height, no page-level sideways scroll, the declared figures, a quiet
+    console; at 1400 px no table scrolls sideways inside its box either (issue 68: 10 of 73 did)."""
     require_browser()
     urls = _page_urls(built["site"], served)
     figures = expected_figures(built)
@@ -317,6 +354,18 @@ def test_a_blank_page_fails_the_reader_checks(built, served):
         for page in ("index.html", "notebooks/03_ood_detection.html", "docs/results.html"):
             problems = reader_problems(driver, served + page, figures.get(f"/{page}"), css=".bd-article{display:none}")
             assert any("visible text" in p for p in problems), (page, problems)
+
+
+def test_tables_that_do_not_wrap_fail_the_reader_checks(built, served):
+    """Mutation: every table cell on one line (`white-space: nowrap`, as the site's stylesheet once had for numbers)
+    makes tables of the OOD page scroll in their boxes at 1400 px; the check names them."""
+    require_browser()
+    nowrap = ".bd-article table td, .bd-article table th { white-space: nowrap !important; }"
+    with headless_chromium(TABLES_FIT_AT, 1000) as driver:
+        page = served + "notebooks/03_ood_detection.html"
+        assert not [p for p in reader_problems(driver, page, None) if "sideways in its box" in p]
+        problems = reader_problems(driver, page, None, css=nowrap)
+    assert any("scrolls" in p and "sideways in its box" in p for p in problems), problems
 
 
 def test_a_figure_lost_from_an_executed_notebook_fails_the_reader_checks(built, tmp_path):
