@@ -53,7 +53,7 @@ def test_the_stage_writes_every_scorer_per_step_with_pedms_labels(written):
     assert list(steps["conditions"]) == [f"{k}/{s}" for k, s in CONDITIONS]
     n = (TINY.threshold_episodes + len(CONDITIONS) * TINY.test_episodes) * TINY.max_steps
     assert steps["scores"].shape == (len(scorers), n) and steps["scores"].dtype == np.float16
-    assert np.all(np.isfinite(steps["scores"]))
+    assert np.all(np.isfinite(steps["scores"])) and not (steps["scores"].view(np.uint16) & 3).any()
     cond, label, step = steps["condition"], steps["label"], steps["step"]
     assert np.bincount(cond + 1).tolist() == [TINY.threshold_episodes * TINY.max_steps] + \
         [TINY.test_episodes * TINY.max_steps] * len(CONDITIONS)
