@@ -5,6 +5,9 @@ measures the curve on one committed run to choose a cut (docs/deviations.md, par
 
     nice -n 5 python -m paper_lib.experiments.pedm_budget HalfCheetah-v5 baseline 0 \
         --episodes 50 10 --epochs 300 300 --out results/paper/pedm/budget_curve.csv
+    nice -n 5 python -m paper_lib.experiments.pedm_budget HalfCheetah-v5 baseline 0 --episodes 50 --epochs 120 \
+        --probes bm_factor/minor bm_factor/severe ... force_vector/severe --probe-episodes 4 \
+        --probe-epochs 10 20 30 40 50 60 70 80 100 120 --out results/paper/pedm/budget_auroc.csv
 
 For each number of ID episodes (the first n of the run's PEDM ID collection, `pedm_collect.play_id`), PEDM is fit
 as the stage fits it, and each epoch records its cumulative wall time, the training loss, PEDM's own validation
@@ -28,7 +31,7 @@ import torch as th
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.measures.dynamics import PEDMConfig, PEDMDetector, ProbEnsemble
-from paper_lib.ood.pedm_collect import play_id, play_tests
+from paper_lib.ood.pedm_collect import CONDITIONS, play_id, play_tests
 from paper_lib.pipeline.pedm_stage import load_agent
 from paper_lib.pipeline.config import load_run_config
 from paper_lib.scoring.metrics import injection_metrics
@@ -127,19 +130,23 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("method")
     parser.add_argument("seed", type=int)
     parser.add_argument("--episodes", type=int, nargs="+", default=[50, 10])
-    parser.add_argument("--epochs", type=int, nargs="+", default=[40, 150])
+    parser.add_argument("--epochs", type=int, nargs="+", default=[300, 300])
     parser.add_argument("--eval-episodes", type=int, default=5)
     parser.add_argument("--probes", nargs="*", default=[], help="kind/severity test collections scored for AUROC")
     parser.add_argument("--probe-episodes", type=int, default=5)
     parser.add_argument("--probe-epochs", type=int, nargs="*", default=[])
-    parser.add_argument("--out", type=Path, default=Path("results/paper/pedm/budget_curve.csv"))
+    parser.add_argument("--out", type=Path, help="default: the profile's pedm/budget_curve.csv (Layout)")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
     if len(args.episodes) != len(args.epochs):
         parser.error("give one --epochs value per --episodes value")
-    table = budget_curve(load_run_config(args.params), args.env_id, args.method, args.seed, args.episodes,
-                         args.epochs, args.eval_episodes, args.out, tuple(args.probes), args.probe_episodes,
-                         tuple(args.probe_epochs))
+    cfg = load_run_config(args.params)
+    args.out = args.out or cfg.layout.pedm_budget_curve
+    unknown = [name for name in args.probes if tuple(name.split("/")) not in CONDITIONS]
+    if unknown:
+        parser.error(f"unknown probe(s) {unknown}; use kind/severity of {[f'{k}/{s}' for k, s in CONDITIONS]}")
+    table = budget_curve(cfg, args.env_id, args.method, args.seed, args.episodes, args.epochs, args.eval_episodes,
+                         args.out, tuple(args.probes), args.probe_episodes, tuple(args.probe_epochs))
     write_curve(args.out, table)
     print(args.out)
 

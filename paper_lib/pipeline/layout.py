@@ -13,7 +13,7 @@ exactly those: a path renamed here or there and not in both places fails that te
       scores/<env>/<method>/seed<s>/                     its OOD scores           (score)
       common_scores/<env>/<method>/seed<s>/              a member run on the baseline's states of its seed (common_score)
       pedm/<env>/<method>/seed<s>/                       a MuJoCo run under PEDM's protocol (pedm, issue 69)
-      pedm/budget_curve.csv                              PEDM's validation curve that chose its epochs
+      pedm/budget_curve.csv, budget_auroc.csv            PEDM's validation curve and AUROC probes that chose its epochs
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
       tables/<folder>/, figures/<folder>/                what a notebook writes whole (STAGE_TABLE_FOLDERS, ...)
       tables/reward_episodes.csv                         every evaluation episode, as notebook 02 read them
