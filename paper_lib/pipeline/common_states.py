@@ -16,7 +16,6 @@ replicates.npy, provenance.json naming the checkpoint and the baseline's dataset
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -26,9 +25,10 @@ import torch as th
 
 from paper_lib.agents.training import stage_lock
 from paper_lib.common.io import atomic_dir, write_json_atomic
-from paper_lib.pipeline.config import RunConfig, load_run_config
+from paper_lib.pipeline.config import RunConfig
 from paper_lib.pipeline.layout import COMMON_STATES_OF as STATES_OF
 from paper_lib.pipeline.layout import common_runs  # noqa: F401 (this module's readers use it with read_common)
+from paper_lib.pipeline.run_cli import run_stage_main
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
                                              check_dataset_identity, load_run_dataset, provenance_record, read_replicate_matrix,
                                              read_score_csv, replicates_by_metric, run_identity)
@@ -137,19 +137,8 @@ def read_common(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.Da
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("env_id")
-    parser.add_argument("method")
-    parser.add_argument("seed", type=int)
-    parser.add_argument("--params", default="params.yaml")
-    args = parser.parse_args(argv)
-    try:
-        cfg = load_run_config(args.params)
-        if (args.env_id, args.method, args.seed) not in cfg.runs():
-            raise ValueError(f"{args.env_id} {args.method} seed {args.seed} is not a run of profile {cfg.profile!r}")
-        print(score_common_files(cfg, args.env_id, args.method, args.seed))
-    except (ValueError, FileNotFoundError) as err:
-        parser.exit(2, f"error: {err}\n")
+    run_stage_main(argv, __doc__.splitlines()[0],
+                   lambda cfg, env_id, method, seed, _params: score_common_files(cfg, env_id, method, seed))
 
 
 if __name__ == "__main__":

@@ -200,7 +200,7 @@ OPTIONAL: tuple[str, ...] = ()
 
 SECTIONS = ("run", "profiles", "hyperparameters")
 #: Sections other parts read with their own loaders (`study`: paper_lib.study.config); kept as they are.
-OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head", "retraining", "preregistration")
+OPTIONAL_SECTIONS = ("study", "guard", "ensembles", "atari_head", "retraining", "preregistration", "pedm")
 POSITIVE = ("n_id_states", "n_ood_states", "eval_episodes", "max_episode_steps", "n_bootstrap", "ood_configs",
             "id_episodes", "steps_per_config", "n_scoring_seeds")
 

@@ -12,6 +12,8 @@ exactly those: a path renamed here or there and not in both places fails that te
       evaluations/<env>/<method>/seed<s>.csv             its reward episodes      (evaluate)
       scores/<env>/<method>/seed<s>/                     its OOD scores           (score)
       common_scores/<env>/<method>/seed<s>/              a member run on the baseline's states of its seed (common_score)
+      pedm/<env>/<method>/seed<s>/                       a MuJoCo run under PEDM's protocol (pedm, issue 69)
+      pedm/budget_curve.csv, budget_auroc.csv            PEDM's validation curve and AUROC probes that chose its epochs
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
       tables/<folder>/, figures/<folder>/                what a notebook writes whole (STAGE_TABLE_FOLDERS, ...)
       tables/reward_episodes.csv                         every evaluation episode, as notebook 02 read them
@@ -102,6 +104,8 @@ PAPER_VS_US_READS = ("rewards_long", "ood_metrics", "reward_vs_baseline", "auroc
 RUN_STAGES = ("train", "collect", "evaluate", "score")
 #: The per-run stage of the member runs whose seed has a baseline run (`common_runs`; runs.yaml's common_runs).
 COMMON_STAGE = "common_score"
+#: The per-run stage of PEDM's protocol (issue 69), for the MuJoCo runs (`pedm_runs`; runs.yaml's pedm_runs).
+PEDM_STAGE = "pedm"
 
 
 def results_dir(root: str | Path, profile: str) -> Path:
@@ -118,6 +122,13 @@ def common_runs(runs: list[Run]) -> list[Run]:
     (paper_lib/pipeline/common_states.py scores them; runs.yaml's `common_runs`)."""
     listed = set(runs)
     return [run for run in runs if run[1] != COMMON_STATES_OF and (run[0], COMMON_STATES_OF, run[2]) in listed]
+
+
+def pedm_runs(runs: list[Run]) -> list[Run]:
+    """The runs among `runs` that PEDM's protocol applies to: the MuJoCo ones (paper_lib/pipeline/pedm_stage.py)."""
+    from paper_lib.agents.envs import MUJOCO_ENVS
+
+    return [run for run in runs if run[0] in MUJOCO_ENVS]
 
 
 def seed_name(seed: int) -> str:
@@ -318,8 +329,22 @@ class Layout:
         """A member run's scores on the baseline's states of its seed (paper_lib/pipeline/common_states.py)."""
         return self.results / "common_scores" / env_id / method / seed_name(seed)
 
+    def pedm_dir(self, env_id: str, method: str, seed: int) -> Path:
+        """A MuJoCo run's per-step scores and metrics under PEDM's protocol (paper_lib/pipeline/pedm_stage.py)."""
+        return self.results / "pedm" / env_id / method / seed_name(seed)
+
+    @property
+    def pedm_budget_curve(self) -> Path:
+        """PEDM's validation curve per epoch on one run (paper_lib/experiments/pedm_budget.py), which set its epochs."""
+        return self.results / "pedm" / "budget_curve.csv"
+
     def stage_paths(self, stage: str, run: Run | None = None) -> StagePaths:
-        """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (RUN_STAGES, COMMON_STAGE)."""
+        """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (RUN_STAGES, COMMON_STAGE,
+        PEDM_STAGE)."""
+        if stage == PEDM_STAGE:
+            if run is None or not pedm_runs([run]):
+                raise ValueError(f"stage {stage!r} is per MuJoCo run: give one, e.g. ('HalfCheetah-v5', 'baseline', 0)")
+            return StagePaths(deps=(self.checkpoint_dir(*run),), outs=(self.pedm_dir(*run),))
         if stage == COMMON_STAGE:
             if run is None or run not in common_runs([run, (run[0], COMMON_STATES_OF, run[2])]):
                 raise ValueError(f"stage {stage!r} is per member run: give one, e.g. (env, 'masksembles', 0)")

@@ -19,18 +19,21 @@ import yaml
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Run, common_runs, stage_suffix  # not status: `config use` imports this module
+from paper_lib.pipeline.layout import Run, common_runs, pedm_runs, stage_suffix  # not status: `config use` imports this module
 
 RUN_LIST = "runs.yaml"
 KEY = "committed_runs"
 #: The member runs that also score the baseline's states of their seed (paper_lib/pipeline/common_states.py).
 COMMON_KEY = "common_runs"
+#: The MuJoCo runs, whose `pedm` stages play PEDM's protocol (paper_lib/pipeline/pedm_stage.py).
+PEDM_KEY = "pedm_runs"
 HEADER = """\
 # The runs of the active profile that have train, collect, evaluate and score stages in dvc.yaml: those with a
 # committed checkpoint, so `dvc repro` on a fresh clone trains nothing (paper_lib/pipeline/run_list.py).
 # Written by the main command and `make retrain`; ask for a run to train with
 #   python -m paper_lib.pipeline.run_list --add <env> <method> <seed>
 # common_runs: the member runs whose seed has a baseline run; their `common_score` stages score the baseline's states.
+# pedm_runs: the MuJoCo runs; their `pedm` stages play PEDM's protocol.
 """
 
 
@@ -41,10 +44,12 @@ def _entries(key: str, runs: list[Run]) -> str:
 
 def run_list_text(cfg: RunConfig, runs: list[Run]) -> str:
     """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes), and under
-    COMMON_KEY the member runs among them whose seed has a baseline run (the `common_score` stages)."""
+    COMMON_KEY the member runs among them whose seed has a baseline run (the `common_score` stages), under PEDM_KEY
+    the MuJoCo runs among them (the `pedm` stages)."""
     order = {run: i for i, run in enumerate(cfg.runs())}
     listed = sorted(set(runs), key=lambda run: order.get(run, len(order)))
-    return f"{HEADER}profile: {cfg.profile}\n{_entries(KEY, listed)}{_entries(COMMON_KEY, common_runs(listed))}"
+    return (f"{HEADER}profile: {cfg.profile}\n{_entries(KEY, listed)}{_entries(COMMON_KEY, common_runs(listed))}"
+            f"{_entries(PEDM_KEY, pedm_runs(listed))}")
 
 
 def read_run_list(root: str | Path = ".") -> tuple[str | None, list[Run]]:

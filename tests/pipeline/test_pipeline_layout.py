@@ -18,12 +18,14 @@ from paper_lib.pipeline.layout import (
     CONDITIONAL_TABLES,
     FIGURE_FORMATS,
     NOTEBOOKS,
+    PEDM_STAGE,
     RUN_STAGES,
     STAGE_TABLES,
     TABLE_FORMATS,
     Layout,
     StagePaths,
     common_runs,
+    pedm_runs,
 )
 from paper_lib.pipeline.run_list import read_run_list
 from paper_lib.pipeline.status import stage_suffix
@@ -51,6 +53,7 @@ def mismatches(stages: dict[str, StagePaths], layout: Layout, runs: list[tuple[s
     """Where dvc.yaml's stages and the layout differ: one line per stage and part, with what is extra or missing."""
     expected = {f"{stage}@{stage_suffix(*run)}": layout.stage_paths(stage, run) for stage in RUN_STAGES for run in runs}
     expected |= {f"{COMMON_STAGE}@{stage_suffix(*run)}": layout.stage_paths(COMMON_STAGE, run) for run in common_runs(runs)}
+    expected |= {f"{PEDM_STAGE}@{stage_suffix(*run)}": layout.stage_paths(PEDM_STAGE, run) for run in pedm_runs(runs)}
     expected |= {stage: layout.stage_paths(stage) for stage in layout.stage_names() if stage not in RUN_STAGES}
     problems = [f"stage {name}: in dvc.yaml, not in the layout (paper_lib/pipeline/layout.py)"
                 for name in sorted(set(stages) - set(expected))]
