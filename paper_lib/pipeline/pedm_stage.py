@@ -41,7 +41,8 @@ from paper_lib.common.io import atomic_dir, write_json_atomic
 from paper_lib.ood.pedm_collect import LoadedAgent
 from paper_lib.pipeline.config import RunConfig, read_params
 from paper_lib.pipeline.run_cli import run_stage_main
-from paper_lib.pipeline.run_results import CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, provenance_record, run_identity
+from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, provenance_record, read_score_csv,
+                                             run_identity)
 
 FILES = ("steps.npz", "metrics.csv", "pedm_fit.csv", PROVENANCE_FILE)
 SECTION = "pedm"
@@ -200,6 +201,24 @@ def run_pedm(cfg: RunConfig, env_id: str, method: str, seed: int, settings: PEDM
             (tmp / "pedm_fit.csv").write_text(_csv(files["pedm_fit.csv"].assign(**tag)))
             write_json_atomic(tmp / PROVENANCE_FILE, provenance)
     return out
+
+
+def run_aurocs(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
+    """Claim 7's inputs (`reporting.pedm_claim.RUN_AUROC_COLUMNS`): for each of `runs` whose `pedm` stage has run,
+    each scorer's AUROC as PEDM reports it, the mean of its two per-severity means (each the mean over the 5 kinds).
+    Runs without PEDM-protocol metrics are left out (the claim says how many it read); a cut or foreign file is one
+    error naming the stage to run again."""
+    rows = []
+    for env_id, method, seed in runs:
+        folder = pedm_dir(cfg, env_id, method, seed)
+        if not (folder / "metrics.csv").is_file():
+            continue
+        identity = run_identity(env_id, method, seed)
+        metrics = read_score_csv(folder, "metrics.csv", identity, f"run it again (`dvc repro -s pedm@{env_id}-{method}-{seed}`)")
+        means = metrics[metrics["kind"] == "mean"].groupby("scorer", sort=False)["auroc"].mean()
+        rows += [{"env": env_id, "method": method, "seed": seed, "measure": scorer, "auroc": float(auroc)}
+                 for scorer, auroc in means.items()]
+    return pd.DataFrame(rows, columns=["env", "method", "seed", "measure", "auroc"])
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -22,7 +22,7 @@ from paper_lib.scoring.statistics import t_interval
 VERSUS, OOD_SET = "pedm", "pedm_protocol"
 #: Per-run AUROCs, one row per (run, score): PEDM's metric for the run (`auroc`), whatever wrote it.
 RUN_AUROC_COLUMNS = ("env", "method", "seed", "measure", "auroc")
-NOT_SCORED = "not testable (no run has PEDM-protocol scores yet)"
+NOT_SCORED = "not testable (no member run has PEDM-protocol scores yet)"
 
 
 def _check(run_aurocs: pd.DataFrame) -> None:
@@ -66,8 +66,10 @@ def pedm_versus(run_aurocs: pd.DataFrame, level: float = LEVEL) -> pd.DataFrame:
 
 def pedm_rows(run_aurocs: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> list[dict[str, str]]:
     """The claims table's rows of claim 7: one per MuJoCo env with PEDM-protocol scores, or one saying none exist."""
-    if run_aurocs is None or run_aurocs.empty:
+    versus = pedm_versus(run_aurocs, design.level) if run_aurocs is not None and not run_aurocs.empty else None
+    if versus is None or versus.empty:
+        runs = 0 if run_aurocs is None or run_aurocs.empty else len(run_aurocs.groupby(["env", "method", "seed"]))
         return [{"claim": CLAIMS["members_vs_pedm"], "env": "all", "verdict": NOT_SCORED,
-                 "evidence": "PEDM's protocol has not been played and scored for any run yet (issue 69)"}]
-    return detector_claim(pedm_versus(run_aurocs, design.level), design, None, claim="members_vs_pedm",
-                          ood_set=OOD_SET)
+                 "evidence": f"{runs} run(s) have PEDM-protocol scores, none of a member method (the `pedm` stages, "
+                             "issue 69)"}]
+    return detector_claim(versus, design, None, claim="members_vs_pedm", ood_set=OOD_SET)

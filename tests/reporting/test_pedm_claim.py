@@ -66,3 +66,22 @@ def test_no_scores_yet_is_one_row_that_says_so_and_a_duplicate_run_is_refused():
         pedm_versus(pd.concat([runs, runs.iloc[:1]]))
     with pytest.raises(ValueError, match=r"missing: rebuild the PEDM-protocol table"):
         pedm_versus(runs.drop(columns="auroc"))
+
+
+def test_the_committed_pedm_run_is_read_as_pedm_reports_it_and_a_baseline_alone_decides_nothing():
+    """The committed `pedm` stage output (HalfCheetah baseline seed 0): each scorer's AUROC is the mean of its two
+    per-severity means; a baseline run has no member measure, so the claim still reads not testable, saying why."""
+    from pathlib import Path
+
+    from paper_lib.pipeline.config import load_run_config
+    from paper_lib.pipeline.pedm_stage import run_aurocs
+
+    root = Path(__file__).resolve().parents[2]
+    cfg = load_run_config(root / "params.yaml")
+    runs = run_aurocs(cfg, [("HalfCheetah-v5", "baseline", 0), ("HalfCheetah-v5", "baseline", 99)])
+    metrics = pd.read_csv(cfg.layout.pedm_dir("HalfCheetah-v5", "baseline", 0) / "metrics.csv")
+    pedm_means = metrics[(metrics.scorer == "pedm") & (metrics.kind == "mean")].auroc
+    assert len(pedm_means) == 2 and set(runs.measure) == {"pedm", "episode_mean", "window_forest"}
+    assert runs.set_index("measure").auroc["pedm"] == pytest.approx(pedm_means.mean())
+    (row,) = pedm_rows(runs)
+    assert row["verdict"] == NOT_SCORED and row["evidence"].startswith("1 run(s) have PEDM-protocol scores, none of")
