@@ -33,7 +33,8 @@ HEADER = """\
 # Written by the main command and `make retrain`; ask for a run to train with
 #   python -m paper_lib.pipeline.run_list --add <env> <method> <seed>
 # common_runs: the member runs whose seed has a baseline run; their `common_score` stages score the baseline's states.
-# pedm_runs: the MuJoCo runs; their `pedm` stages play PEDM's protocol.
+# pedm_runs: the MuJoCo runs whose `pedm` stage (PEDM's protocol) has run, or was asked for with
+#   python -m paper_lib.pipeline.run_list --pedm <env> <method> <seed>      (then `dvc repro -s pedm@<env>-<method>-<seed>`)
 """
 
 
@@ -42,30 +43,34 @@ def _entries(key: str, runs: list[Run]) -> str:
     return f"{key}:{' {}' if not runs else ''}\n{lines}"
 
 
-def run_list_text(cfg: RunConfig, runs: list[Run]) -> str:
+def run_list_text(cfg: RunConfig, runs: list[Run], pedm: list[Run] = ()) -> str:
     """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes), and under
     COMMON_KEY the member runs among them whose seed has a baseline run (the `common_score` stages), under PEDM_KEY
-    the MuJoCo runs among them (the `pedm` stages)."""
+    the MuJoCo runs among them whose PEDM-protocol metrics exist, plus `pedm` (the `pedm` stages: so `dvc repro`
+    on the committed tree plays no protocol, as it trains and collects nothing)."""
     order = {run: i for i, run in enumerate(cfg.runs())}
     listed = sorted(set(runs), key=lambda run: order.get(run, len(order)))
+    played = [run for run in pedm_runs(listed) if run in pedm or (cfg.layout.pedm_dir(*run) / "metrics.csv").is_file()]
     return (f"{HEADER}profile: {cfg.profile}\n{_entries(KEY, listed)}{_entries(COMMON_KEY, common_runs(listed))}"
-            f"{_entries(PEDM_KEY, pedm_runs(listed))}")
+            f"{_entries(PEDM_KEY, played)}")
 
 
-def read_run_list(root: str | Path = ".") -> tuple[str | None, list[Run]]:
-    """(profile, runs) of runs.yaml; (None, []) where there is none yet."""
+def read_run_list(root: str | Path = ".", key: str = KEY) -> tuple[str | None, list[Run]]:
+    """(profile, runs) of runs.yaml (`key`: PEDM_KEY for the runs with `pedm` stages); (None, []) where there is none
+    yet."""
     path = Path(root) / RUN_LIST
     if not path.is_file():
         return None, []
     data = yaml.safe_load(path.read_text()) or {}
-    runs = data.get(KEY) or {}
+    runs = data.get(key) or {}
     return data.get("profile"), [(entry["env"], entry["method"], int(entry["seed"])) for entry in runs.values()]
 
 
-def write_run_list(cfg: RunConfig, extra: list[Run] = ()) -> tuple[Path, bool]:
-    """Write runs.yaml with the runs that have a checkpoint plus `extra`; (path, whether its bytes changed)."""
+def write_run_list(cfg: RunConfig, extra: list[Run] = (), pedm: list[Run] = ()) -> tuple[Path, bool]:
+    """Write runs.yaml with the runs that have a checkpoint plus `extra` (`pedm`: MuJoCo runs to give a `pedm`
+    stage before their protocol has run); (path, whether its bytes changed)."""
     path = cfg.root / RUN_LIST
-    text = run_list_text(cfg, [*(run for run in cfg.runs() if cfg.layout.has_checkpoint(*run)), *extra])
+    text = run_list_text(cfg, [*(run for run in cfg.runs() if cfg.layout.has_checkpoint(*run)), *extra], pedm)
     changed = not path.is_file() or path.read_text() != text
     if changed:
         write_text_atomic(path, text)
@@ -76,6 +81,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--add", nargs=3, action="append", default=[], metavar=("ENV", "METHOD", "SEED"),
                         help="a run of the profile to give stages, to train it with `dvc repro` (repeatable)")
+    parser.add_argument("--pedm", nargs=3, action="append", default=[], metavar=("ENV", "METHOD", "SEED"),
+                        help="a committed MuJoCo run to give a `pedm` stage, to play PEDM's protocol with `dvc repro -s "
+                             "pedm@ENV-METHOD-SEED` (repeatable)")
     parser.add_argument("--all", action="store_true", help="every run of the profile")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
@@ -83,11 +91,15 @@ def main(argv: list[str] | None = None) -> None:
         cfg = load_run_config(args.params)
         profile_runs = cfg.runs()
         asked = [(env, method, int(seed)) for env, method, seed in args.add]
-        unknown = [run for run in asked if run not in profile_runs]
+        protocol = [(env, method, int(seed)) for env, method, seed in args.pedm]
+        unknown = [run for run in asked + protocol if run not in profile_runs]
         if unknown:
             raise ValueError(f"{unknown} are not runs of profile {cfg.profile!r} (its envs {cfg.envs}, methods "
                              f"{cfg.methods}, seeds {cfg.seeds}); edit params.yaml's run section or pick one of those")
-        path, _ = write_run_list(cfg, profile_runs if args.all else asked)
+        not_mujoco = [run for run in protocol if not pedm_runs([run])]
+        if not_mujoco:
+            raise ValueError(f"{not_mujoco}: PEDM's protocol is defined for the MuJoCo envs only")
+        path, _ = write_run_list(cfg, profile_runs if args.all else asked, protocol)
     except ValueError as err:
         parser.exit(2, f"error: {err}\n")
     print(f"{path}: {len(read_run_list(cfg.root)[1])} runs with stages")

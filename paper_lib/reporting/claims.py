@@ -439,5 +439,5 @@ def paper_claims(vs_baseline: pd.DataFrame, pairwise: pd.DataFrame, metrics: pd.
 
     rows = (reward_claim(vs_baseline, design) + auroc_claim(pairwise, design, metrics)
             + levitation_claim(spawn, design) + js_claim(metrics, design) + speed_rows(timings, design)
-            + detector_claim(versus, design, metrics) + pedm_rows(pedm_aurocs, design))
+            + detector_claim(versus, design, metrics) + pedm_rows(pedm_aurocs, design, list(metrics["env"].unique())))
     return pd.DataFrame(rows, columns=COLUMNS)

@@ -64,12 +64,25 @@ def pedm_versus(run_aurocs: pd.DataFrame, level: float = LEVEL) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def pedm_rows(run_aurocs: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> list[dict[str, str]]:
-    """The claims table's rows of claim 7: one per MuJoCo env with PEDM-protocol scores, or one saying none exist."""
-    versus = pedm_versus(run_aurocs, design.level) if run_aurocs is not None and not run_aurocs.empty else None
-    if versus is None or versus.empty:
-        runs = 0 if run_aurocs is None or run_aurocs.empty else len(run_aurocs.groupby(["env", "method", "seed"]))
-        return [{"claim": CLAIMS["members_vs_pedm"], "env": "all", "verdict": NOT_SCORED,
-                 "evidence": f"{runs} run(s) have PEDM-protocol scores, none of a member method (the `pedm` stages, "
-                             "issue 69)"}]
-    return detector_claim(versus, design, None, claim="members_vs_pedm", ood_set=OOD_SET)
+def pedm_rows(run_aurocs: pd.DataFrame | None, design: ClaimDesign = ClaimDesign(),
+              envs: list[str] | None = None) -> list[dict[str, str]]:
+    """The claims table's rows of claim 7, one per MuJoCo env of `envs` (default: those with PEDM-protocol AUROCs):
+    claim 5's verdict where some member run has them, otherwise not testable, saying how many runs have any."""
+    from paper_lib.agents.envs import is_atari
+
+    if run_aurocs is None or run_aurocs.empty:
+        run_aurocs = pd.DataFrame(columns=list(RUN_AUROC_COLUMNS))
+    versus = pedm_versus(run_aurocs, design.level) if not run_aurocs.empty else pd.DataFrame(columns=["env"])
+    decided = {row["env"]: row for row in (detector_claim(versus, design, None, claim="members_vs_pedm",
+                                                          ood_set=OOD_SET) if not versus.empty else [])}
+    wanted = [env for env in (envs if envs is not None else run_aurocs["env"].unique()) if not is_atari(env)]
+    rows = []
+    for env in dict.fromkeys([*wanted, *decided]):
+        if env in decided:
+            rows.append(decided[env])
+            continue
+        runs = len(run_aurocs[run_aurocs["env"] == env].groupby(["method", "seed"]))
+        rows.append({"claim": CLAIMS["members_vs_pedm"], "env": env, "verdict": NOT_SCORED,
+                     "evidence": f"{runs} run(s) have PEDM-protocol scores, none of a member method (the `pedm` "
+                                 "stages, issue 69)"})
+    return rows

@@ -231,7 +231,7 @@ def test_save_load_round_trip_and_file_errors(id_states, ood_states, tmp_path):
     with pytest.raises(FileNotFoundError, match="run the collection"):
         StateDataset.load(tmp_path / "missing.npz")
     (tmp_path / "broken.npz").write_bytes(path.read_bytes()[:200])
-    with pytest.raises(ValueError, match="re-run the collection"):
+    with pytest.raises(ValueError, match="damaged or was written by something else: run the collection that writes it again"):
         StateDataset.load(tmp_path / "broken.npz")
 
 

@@ -27,7 +27,7 @@ from paper_lib.pipeline.layout import (
     common_runs,
     pedm_runs,
 )
-from paper_lib.pipeline.run_list import read_run_list
+from paper_lib.pipeline.run_list import PEDM_KEY, read_run_list
 from paper_lib.pipeline.status import stage_suffix
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -51,9 +51,11 @@ def dvc_stages(root: Path = ROOT) -> dict[str, StagePaths]:
 
 def mismatches(stages: dict[str, StagePaths], layout: Layout, runs: list[tuple[str, str, int]]) -> list[str]:
     """Where dvc.yaml's stages and the layout differ: one line per stage and part, with what is extra or missing."""
+    played = read_run_list(ROOT, PEDM_KEY)[1]  # the MuJoCo runs whose PEDM protocol has run (runs.yaml)
+    assert played == [run for run in pedm_runs(runs) if (layout.pedm_dir(*run) / "metrics.csv").is_file()], played
     expected = {f"{stage}@{stage_suffix(*run)}": layout.stage_paths(stage, run) for stage in RUN_STAGES for run in runs}
     expected |= {f"{COMMON_STAGE}@{stage_suffix(*run)}": layout.stage_paths(COMMON_STAGE, run) for run in common_runs(runs)}
-    expected |= {f"{PEDM_STAGE}@{stage_suffix(*run)}": layout.stage_paths(PEDM_STAGE, run) for run in pedm_runs(runs)}
+    expected |= {f"{PEDM_STAGE}@{stage_suffix(*run)}": layout.stage_paths(PEDM_STAGE, run) for run in played}
     expected |= {stage: layout.stage_paths(stage) for stage in layout.stage_names() if stage not in RUN_STAGES}
     problems = [f"stage {name}: in dvc.yaml, not in the layout (paper_lib/pipeline/layout.py)"
                 for name in sorted(set(stages) - set(expected))]

@@ -59,8 +59,10 @@ def test_fewer_seeds_than_planned_are_provisional_and_one_seed_never_decides():
     assert pedm_rows(one)[0]["verdict"] == "inconclusive (1 seed)"
 
 
-def test_no_scores_yet_is_one_row_that_says_so_and_a_duplicate_run_is_refused():
-    assert pedm_rows(None) == pedm_rows(pd.DataFrame()) and pedm_rows(None)[0]["verdict"] == NOT_SCORED
+def test_no_scores_yet_is_a_row_per_mujoco_env_that_says_so_and_a_duplicate_run_is_refused():
+    assert pedm_rows(None) == pedm_rows(pd.DataFrame()) == []
+    rows = pedm_rows(None, envs=["HalfCheetah-v5", "SeaquestNoFrameskip-v4", "Ant-v5"])  # per MuJoCo env, as registered
+    assert [(r["env"], r["verdict"]) for r in rows] == [("HalfCheetah-v5", NOT_SCORED), ("Ant-v5", NOT_SCORED)]
     runs = _runs({("masksembles", "value_std"): [0.1, 0.1]}, PEDM[:2])
     with pytest.raises(ValueError, match="HalfCheetah-v5 masksembles seed 0 value_std more than once"):
         pedm_versus(pd.concat([runs, runs.iloc[:1]]))
