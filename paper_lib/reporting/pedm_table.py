@@ -97,12 +97,11 @@ def protocol_table(runs: pd.DataFrame, digits: int = 2) -> pd.DataFrame:
     cells["cell"] = [cell_text(*values, digits=digits) for values in
                      cells[["auroc", "ci_low", "ci_high", "n_seeds"]].itertuples(index=False)]
     keys = ["env", "method", "severity"]
+    rank = {key: {v: i for i, v in enumerate(pd.unique(cells[key]))} for key in ("env", "method")}
+    rank["severity"] = {s: i for i, s in enumerate(SEVERITY_ORDER)}  # envs and methods as read, minor before severe
+    rows = cells[keys].drop_duplicates().sort_values(keys, key=lambda col: col.map(rank[col.name]), kind="stable")
     table = cells.pivot(index=keys, columns="scorer", values="cell")
-    rows = (cells[keys].drop_duplicates()
-            .assign(severity_rank=lambda df: df["severity"].map({s: i for i, s in enumerate(SEVERITY_ORDER)}))
-            .assign(env_rank=lambda df: pd.factorize(df["env"])[0], method_rank=lambda df: pd.factorize(df["method"])[0])
-            .sort_values(["env_rank", "method_rank", "severity_rank"], kind="stable"))
-    table = table.reindex(index=pd.MultiIndex.from_frame(rows[keys]), columns=scorer_order(cells["scorer"]))
+    table = table.reindex(index=pd.MultiIndex.from_frame(rows), columns=scorer_order(cells["scorer"]))
     table.columns.name = None
     return table.fillna("").reset_index()
 
