@@ -14,6 +14,7 @@ exactly those: a path renamed here or there and not in both places fails that te
       common_scores/<env>/<method>/seed<s>/              a member run on the baseline's states of its seed (common_score)
       pedm/<env>/<method>/seed<s>/                       a MuJoCo run under PEDM's protocol (pedm, issue 69)
       pedm/budget_curve.csv, budget_auroc.csv            PEDM's validation curve and AUROC probes that chose its epochs
+      tables/pedm_protocol_runs.csv                      every run's PEDM-protocol metrics, as notebook 14 read them
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
       tables/<folder>/, figures/<folder>/                what a notebook writes whole (STAGE_TABLE_FOLDERS, ...)
       tables/reward_episodes.csv                         every evaluation episode, as notebook 02 read them
@@ -63,13 +64,16 @@ TRAINING_CURVE = "training_curve.csv"
 SPAWN_FILES = ("rollouts", "summary")
 #: Every evaluation episode the `rewards` stage read, one CSV under tables/ beside its tables.
 REWARD_EPISODES = "reward_episodes.csv"
+#: Every PEDM-protocol metric the `pedm_protocol` stage read (one row per run, scorer, kind and severity), under tables/.
+PEDM_PROTOCOL_RUNS = "pedm_protocol_runs.csv"
 
 #: The executed notebook of each notebook stage, under notebooks/ (the source is notebooks/<name>.ipynb too).
 NOTEBOOKS = {"quickstart": "00_quickstart", "rewards": "02_rewards", "ood": "03_ood_detection",
              "uncertainty_over_time": "04_uncertainty_over_time",
              "training_and_perturbations": "05_training_and_perturbations", "paper_vs_us": "06_paper_vs_us",
              "example_states": "07_example_states", "guard": "08_guard", "study": "09_study", "scaling": "10_scaling",
-             "ensembles": "11_ensembles", "spawn": "12_spawn", "value_level": "13_value_level"}
+             "ensembles": "11_ensembles", "spawn": "12_spawn", "value_level": "13_value_level",
+             "pedm_protocol": "14_pedm_protocol"}
 #: The tables each stage writes directly under tables/ (each in every TABLE_FORMATS).
 STAGE_TABLES = {
     "rewards": ("rewards", "rewards_long", "reward_repeated_games", "reward_vs_baseline", "reward_aggregates",
@@ -80,6 +84,7 @@ STAGE_TABLES = {
     "paper_vs_us": ("paper_claims", "paper_vs_us_rewards", "paper_vs_us_auroc"),
     "spawn": ("spawn_uncertainty",),
     "value_level": ("value_level",),
+    "pedm_protocol": ("pedm_protocol",),
 }
 #: Tables a stage writes only where the profile has what they show, so not DVC outputs (DVC needs each output
 #: to exist): the Atari OOD sources against the agents' own play.
@@ -92,7 +97,8 @@ STAGE_FIGURES = {"rewards": ("reward_profiles",), "ood": ("roc_value_policy", "r
 STAGE_FIGURE_FOLDERS = {"uncertainty_over_time": ("over_time",), "training_and_perturbations": ("perturbation_bars",),
                         "example_states": ("example_states",), "quickstart": ("quickstart",), "guard": ("guard",),
                         "spawn": ("spawn",), "value_level": ("value_level",), "study": ("study",),
-                        "scaling": ("scaling",), "ensembles": ("ensembles",)}
+                        "scaling": ("scaling",), "ensembles": ("ensembles",),
+                        "pedm_protocol": ("pedm_protocol",)}
 STAGE_TABLE_FOLDERS = {"guard": ("guard",), "study": ("study",), "scaling": ("scaling",), "ensembles": ("ensembles",)}
 #: Every stem of a table written directly under tables/, and of a figure under figures/ (what `Layout.table` and
 #: `Layout.figure` accept).
@@ -258,6 +264,11 @@ class Layout:
         return tuple(self.figures / f"{stem}.{fmt}" for fmt in FIGURE_FORMATS)
 
     @property
+    def pedm_protocol_runs(self) -> Path:
+        """Every PEDM-protocol metric the `pedm_protocol` stage read (PEDM_PROTOCOL_RUNS)."""
+        return self.tables / PEDM_PROTOCOL_RUNS
+
+    @property
     def status_file(self) -> Path:
         """runs.md: which runs exist and what each has."""
         return self.results / "runs.md"
@@ -331,12 +342,17 @@ class Layout:
 
     def pedm_dir(self, env_id: str, method: str, seed: int) -> Path:
         """A MuJoCo run's per-step scores and metrics under PEDM's protocol (paper_lib/pipeline/pedm_stage.py)."""
-        return self.results / "pedm" / env_id / method / seed_name(seed)
+        return self.pedm / env_id / method / seed_name(seed)
+
+    @property
+    def pedm(self) -> Path:
+        """Every run's PEDM-protocol folder, and the budget files that set PEDM's epochs (read by `pedm_protocol`)."""
+        return self.results / "pedm"
 
     @property
     def pedm_budget_curve(self) -> Path:
         """PEDM's validation curve per epoch on one run (paper_lib/experiments/pedm_budget.py), which set its epochs."""
-        return self.results / "pedm" / "budget_curve.csv"
+        return self.pedm / "budget_curve.csv"
 
     def stage_paths(self, stage: str, run: Run | None = None) -> StagePaths:
         """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (RUN_STAGES, COMMON_STAGE,
@@ -396,9 +412,11 @@ class Layout:
             "ensembles_train": (),
             "ensembles_scores": tuple(part.folder("checkpoint") for part in parts),
             "ensembles": (*(part.results for part in parts), scores),
+            "pedm_protocol": (self.pedm,),
         }
         writes = {  # besides the stage's tables, figures and executed notebook
             "rewards": (self.reward_episodes,),
+            "pedm_protocol": (self.pedm_protocol_runs,),
             "record_example_states": (self.recording("example_states"),),
             "record_quickstart": (self.recording("quickstart"),),
             "guard": (self.guards,),

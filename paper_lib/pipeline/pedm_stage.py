@@ -25,6 +25,7 @@ Cost (docs/deviations.md): 255k env steps and one PEDM fit per run, about 4.5 CP
 from __future__ import annotations
 
 import io
+import json
 import sys
 import time
 import zipfile
@@ -203,21 +204,47 @@ def run_pedm(cfg: RunConfig, env_id: str, method: str, seed: int, settings: PEDM
     return out
 
 
-def run_aurocs(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
-    """Claim 7's inputs (`reporting.pedm_claim.RUN_AUROC_COLUMNS`): for each of `runs` whose `pedm` stage has run,
-    each scorer's AUROC as PEDM reports it, the mean of its two per-severity means (each the mean over the 5 kinds).
-    Runs without PEDM-protocol metrics are left out (the claim says how many it read); a cut or foreign file is one
-    error naming the stage to run again."""
-    rows = []
+def read_metrics(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
+    """Every metrics.csv of `runs` whose `pedm` stage has run, one below the other (each row carries its run's env,
+    method and seed). Runs without PEDM-protocol metrics are left out; a cut or foreign file is one error naming the
+    stage to run again."""
+    from paper_lib.scoring.pedm_scores import METRIC_COLUMNS
+
+    frames = []
     for env_id, method, seed in runs:
         folder = pedm_dir(cfg, env_id, method, seed)
         if not (folder / "metrics.csv").is_file():
             continue
-        identity = run_identity(env_id, method, seed)
-        metrics = read_score_csv(folder, "metrics.csv", identity, f"run it again (`dvc repro -s pedm@{env_id}-{method}-{seed}`)")
-        means = metrics[metrics["kind"] == "mean"].groupby("scorer", sort=False)["auroc"].mean()
-        rows += [{"env": env_id, "method": method, "seed": seed, "measure": scorer, "auroc": float(auroc)}
-                 for scorer, auroc in means.items()]
+        frames.append(read_score_csv(folder, "metrics.csv", run_identity(env_id, method, seed),
+                                     f"run it again (`dvc repro -s pedm@{env_id}-{method}-{seed}`)"))
+    if not frames:
+        return pd.DataFrame(columns=["scorer", "kind", "severity", *METRIC_COLUMNS, "env", "method", "seed"])
+    return pd.concat(frames, ignore_index=True)
+
+
+def read_run_settings(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Any]:
+    """The settings one run's `pedm` stage ran with (its provenance.json's ``settings``), or one error naming the
+    stage to run again."""
+    path = pedm_dir(cfg, env_id, method, seed) / PROVENANCE_FILE
+    try:
+        settings = json.loads(path.read_text()).get("settings")
+        if not isinstance(settings, dict):
+            raise ValueError("it holds no `settings`")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError) as err:
+        raise ValueError(f"{path} is not a readable provenance record of the `pedm` stage ({err}); run it again "
+                         f"(`dvc repro -s pedm@{env_id}-{method}-{seed}`)") from None
+    return settings
+
+
+def run_aurocs(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
+    """Claim 7's inputs (`reporting.pedm_claim.RUN_AUROC_COLUMNS`): for each of `runs` whose `pedm` stage has run,
+    each scorer's AUROC as PEDM reports it, the mean of its two per-severity means (each the mean over the 5 kinds).
+    Runs without PEDM-protocol metrics are left out (the claim says how many it read); a cut or foreign file is one
+    error naming the stage to run again (`read_metrics`)."""
+    metrics = read_metrics(cfg, runs)
+    means = metrics[metrics["kind"] == "mean"].groupby(["env", "method", "seed", "scorer"], sort=False)["auroc"].mean()
+    rows = [{"env": env_id, "method": method, "seed": int(seed), "measure": scorer, "auroc": float(auroc)}
+            for (env_id, method, seed, scorer), auroc in means.items()]
     return pd.DataFrame(rows, columns=["env", "method", "seed", "measure", "auroc"])
 
 

@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS, common_runs
+from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS, common_runs, pedm_runs
 from paper_lib.pipeline.run_list import write_run_list
 from paper_lib.agents.envs import MUJOCO_ENVS
 from paper_lib.pipeline.status import (
@@ -41,8 +41,8 @@ from paper_lib.pipeline.status import (
 )
 
 #: Table and figure stages in dependency order (paper_vs_us reads what rewards and ood write).
-TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
-                "example_states", "quickstart", "study", "scaling", "ensembles")
+TABLE_STAGES = ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "pedm_protocol",
+                "paper_vs_us", "example_states", "quickstart", "study", "scaling", "ensembles")
 #: Experiments that play episodes with committed checkpoints: `make recollect` runs them where DVC finds them stale.
 EXPERIMENT_STAGES = ("guard", "spawn", "value_level", "ensembles_scores")
 #: What notebooks 07 and 00 draw from simulation, played once by `make recollect`.
@@ -112,6 +112,7 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
     layout = cfg.layout
     ready["study"] = layout.studies_db.is_file()
     ready["scaling"] = layout.scaling.is_dir()
+    ready["pedm_protocol"] = any((layout.pedm_dir(*run) / "metrics.csv").is_file() for run in pedm_runs(cfg.runs()))
     ready["ensembles"] = layout.folder("scores").is_dir() and any(_has_files(layout.part(part).folder("scores"))
                                                                    for part in ENSEMBLE_PARTS)
     why = {"rewards": "no run has evaluation episodes", "ood": "no run has scores (no run has a dataset)",
@@ -120,6 +121,8 @@ def table_stages(cfg: RunConfig) -> tuple[list[str], list[str]]:
            "example_states": "its frames are not recorded yet (`make recollect`)",
            "quickstart": "its episode is not recorded yet (`make recollect`; its agent is "
                          f"{QUICKSTART_RUN[0]} {QUICKSTART_RUN[1]} seed {QUICKSTART_RUN[2]})",
+           "pedm_protocol": "no MuJoCo run has played PEDM's protocol yet (`python -m paper_lib.pipeline.run_list "
+                            "--pedm ENV METHOD SEED`, then `dvc repro -s pedm@ENV-METHOD-SEED`)",
            "study": "no study database yet (`dvc repro study_sweep` or `python -m paper_lib.study.worker --all`)",
            "scaling": "no scaling runs yet (`python -m paper_lib.study.scaling`)",
            "ensembles": "it needs scored independent ensembles or own runs, and scored shared runs "

@@ -112,7 +112,7 @@ def test_main_command_lists_missing_runs_and_trains_nothing(tiny_repo):
     for stage in ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
                   "example_states", "quickstart"):
         assert f"Running stage '{stage}'" in log, log
-    for stage in ("study", "scaling", "ensembles"):  # their inputs are made by long runs only
+    for stage in ("study", "scaling", "ensembles", "pedm_protocol"):  # their inputs are made by long runs only
         assert f"{stage}: skipped" in log and f"Running stage '{stage}'" not in log, log
     assert "Running stage 'ensembles_scores'" not in log, log
     assert "missing (not made here): HalfCheetah-v5 masksembles seed 1: no checkpoint" in log

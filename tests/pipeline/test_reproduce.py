@@ -41,6 +41,19 @@ def test_ensembles_stages_wait_for_runs_then_run_with_own_runs_alone(tmp_path: P
     assert "ensembles" in table_stages(cfg)[0]
 
 
+def test_the_pedm_protocol_table_waits_for_a_run_that_played_pedms_protocol(tmp_path: Path):
+    """Its DVC dep, results/<profile>/pedm, exists only once a `pedm` stage ran: until a run has metrics, skipped."""
+    cfg = dataclasses.replace(_empty_profile(tmp_path), envs=["HalfCheetah-v5"], methods=["baseline"], seeds=[0])
+    stages, skipped = table_stages(cfg)
+    assert "pedm_protocol" not in stages
+    assert any(line.startswith("pedm_protocol: skipped, no MuJoCo run has played PEDM's protocol") for line in skipped)
+    folder = cfg.layout.pedm_dir("HalfCheetah-v5", "baseline", 0)
+    folder.mkdir(parents=True)
+    assert "pedm_protocol" not in table_stages(cfg)[0]  # a folder without metrics is no run
+    (folder / "metrics.csv").write_text("scorer,kind\n")
+    assert "pedm_protocol" in table_stages(cfg)[0]
+
+
 def test_runs_md_estimates_the_missing_training_from_the_trained_runs(tmp_path: Path):
     cfg = dataclasses.replace(_empty_profile(tmp_path), envs=["Swimmer-v5", "SeaquestNoFrameskip-v4"],
                               methods=["baseline", "ensemble"], seeds=[0, 1])

@@ -1,0 +1,136 @@
+"""PEDM's protocol as a table (issue 69, notebook 14): every scorer of every MuJoCo run, per severity.
+
+Each run's `pedm` stage wrote its metrics (results/<profile>/pedm/<env>/<method>/seed<s>/metrics.csv): per scorer
+(the agent's own measures, PEDM and the two sequence baselines) and per (kind, severity), PEDM's pooled per-step
+AUROC, AP, FPR@95 and our detection delay, plus kind ``mean``, PEDM's per-severity mean over its 5 kinds. The table
+puts one row per (env, method, severity) and one column per scorer; a cell is the mean over the seeds of that
+per-severity mean, with Student's t 95% interval over the seeds where there are two or more and the seed count, as
+"0.95 [0.91, 0.99] (n=4)". Rows run down rather than severities across: 6 scorers x 2 severities side by side would
+not fit the site's column (docs/deviations.md). `protocol_runs` is the long form every cell is computed from, one
+row per (run, scorer, kind, severity), written beside the table so any reader can recompute it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from paper_lib.common.io import write_text_atomic
+from paper_lib.measures.definitions import ALL_MEMBER_MEASURES
+from paper_lib.pipeline.config import RunConfig
+from paper_lib.pipeline.pedm_stage import read_metrics, read_run_settings
+from paper_lib.reporting.tables import csv_text, save_table
+from paper_lib.scoring.peer_scores import PEER_DETECTORS
+from paper_lib.scoring.statistics import t_interval
+
+#: The long form: one row per (run, scorer, kind, severity); kind ``mean`` is PEDM's per-severity mean.
+RUN_COLUMNS = ("env", "method", "seed", "scorer", "kind", "severity", "auroc", "aupr_out", "fpr_at_95_tpr",
+               "delay_median", "detected", "false_alarm")
+#: One cell of the table before it is printed: the mean over seeds of the per-severity mean AUROC, its interval.
+CELL_COLUMNS = ("env", "method", "severity", "scorer", "auroc", "ci_low", "ci_high", "n_seeds")
+MEAN_KIND = "mean"
+SEVERITY_ORDER = ("minor", "severe")
+#: What the table says when no run of the profile has played PEDM's protocol.
+NO_RUNS = ("no MuJoCo run of this profile has PEDM-protocol metrics yet: give one a stage with `python -m "
+           "paper_lib.pipeline.run_list --pedm ENV METHOD SEED`, then `dvc repro -s pedm@ENV-METHOD-SEED`")
+#: PEDM's test episodes per kind and severity (pedm-ood, oodd_runner.py: n_test_episodes=100).
+PEDM_TEST_EPISODES = 100
+
+
+def protocol_runs(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
+    """RUN_COLUMNS of every run among `runs` whose `pedm` stage ran (`pedm_stage.read_metrics`: a cut or foreign
+    metrics.csv is one error naming `dvc repro -s pedm@...`); empty, with these columns, where none has."""
+    metrics = read_metrics(cfg, runs)
+    out = metrics[list(RUN_COLUMNS)].copy()
+    if len(out):
+        out["seed"] = out["seed"].astype(int)
+    return out.reset_index(drop=True)
+
+
+def scorer_order(scorers: list[str] | pd.Series) -> list[str]:
+    """The scorers found, the agent's own measures first (ALL_MEMBER_MEASURES), then PEER_DETECTORS, then others."""
+    found = list(dict.fromkeys(scorers))
+    known = [*ALL_MEMBER_MEASURES, *PEER_DETECTORS]
+    return [s for s in known if s in found] + [s for s in found if s not in known]
+
+
+def _check_runs(runs: pd.DataFrame) -> None:
+    missing = [c for c in RUN_COLUMNS if c not in runs.columns]
+    if missing:
+        raise ValueError(f"PEDM's protocol table needs the long form with columns {list(RUN_COLUMNS)}; {missing} are "
+                         "missing: read it with `pedm_table.protocol_runs`")
+
+
+def severity_cells(runs: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
+    """CELL_COLUMNS: per (env, method, severity, scorer), the mean over seeds of the per-severity mean AUROC (kind
+    ``mean``), Student's t interval over the seeds (NaN with one seed) and the number of seeds."""
+    _check_runs(runs)
+    means = runs[runs["kind"] == MEAN_KIND]
+    twice = means.duplicated(["env", "method", "seed", "scorer", "severity"])
+    if twice.any():
+        first = means[twice].iloc[0]
+        raise ValueError(f"PEDM's protocol holds {first.env} {first.method} seed {first.seed} {first.scorer} "
+                         f"{first.severity} more than once: one metrics.csv per run")
+    rows = []
+    for (env, method, severity, scorer), cell in means.groupby(["env", "method", "severity", "scorer"], sort=False):
+        aurocs = cell["auroc"].to_numpy(dtype=float)
+        low, high = t_interval(aurocs, level) if aurocs.size >= 2 else (np.nan, np.nan)
+        rows.append({"env": env, "method": method, "severity": severity, "scorer": scorer,
+                     "auroc": float(aurocs.mean()), "ci_low": low, "ci_high": high, "n_seeds": int(aurocs.size)})
+    return pd.DataFrame(rows, columns=list(CELL_COLUMNS))
+
+
+def cell_text(auroc: float, low: float, high: float, n_seeds: int, digits: int = 2) -> str:
+    """'0.95 [0.91, 0.99] (n=4)'; with one seed (no interval) '0.95 (n=1)'."""
+    interval = "" if np.isnan(low) or np.isnan(high) else f" [{low:.{digits}f}, {high:.{digits}f}]"
+    return f"{auroc:.{digits}f}{interval} (n={n_seeds})"
+
+
+def protocol_table(runs: pd.DataFrame, digits: int = 2) -> pd.DataFrame:
+    """One row per (env, method, severity), one column per scorer (`scorer_order`), each cell `cell_text`; empty
+    where a run has no such scorer (a baseline has no measure of its own). No runs: one row saying so (NO_RUNS)."""
+    cells = severity_cells(runs)
+    if cells.empty:
+        return pd.DataFrame({"PEDM's protocol": [NO_RUNS]})
+    cells["cell"] = [cell_text(*values, digits=digits) for values in
+                     cells[["auroc", "ci_low", "ci_high", "n_seeds"]].itertuples(index=False)]
+    keys = ["env", "method", "severity"]
+    rank = {key: {v: i for i, v in enumerate(pd.unique(cells[key]))} for key in ("env", "method")}
+    rank["severity"] = {s: i for i, s in enumerate(SEVERITY_ORDER)}  # envs and methods as read, minor before severe
+    rows = cells[keys].drop_duplicates().sort_values(keys, key=lambda col: col.map(rank[col.name]), kind="stable")
+    table = cells.pivot(index=keys, columns="scorer", values="cell")
+    table = table.reindex(index=pd.MultiIndex.from_frame(rows), columns=scorer_order(cells["scorer"]))
+    table.columns.name = None
+    return table.fillna("").reset_index()
+
+
+def table_caption(runs: pd.DataFrame, profile: str) -> str:
+    """The table's caption: what a cell is, and how many runs per env it rests on (computed from `runs`)."""
+    what = ("AUROC under PEDM's protocol (a perturbation injected at a random step of each episode; pooled per-step "
+            "AUROC of one kind and severity, averaged over PEDM's 5 kinds per severity, as PEDM reports it): mean over "
+            "seeds, Student's t 95% interval over seeds where there are two or more, (n=seeds); empty: the run has no "
+            f"such score (a baseline has no measure of its own) (profile {profile!r}")
+    if runs.empty:
+        return f"{what}; no run has played it yet)."
+    per_env = runs.drop_duplicates(["env", "method", "seed"]).groupby("env", sort=False).size()
+    return f"{what}; runs per env: {', '.join(f'{env} {n}' for env, n in per_env.items())})."
+
+
+def save_protocol_tables(runs: pd.DataFrame, table_stem: Path, runs_csv: Path, profile: str) -> pd.DataFrame:
+    """Write the table (csv, md, tex at `table_stem`) and the long form beside it (`runs_csv`); return the table."""
+    table = protocol_table(runs)
+    save_table(table, table_stem, table_caption(runs, profile))
+    write_text_atomic(runs_csv, csv_text(runs.sort_values(["env", "method", "seed"], kind="stable")))
+    return table
+
+
+def protocol_settings(cfg: RunConfig, runs: pd.DataFrame) -> dict[str, list]:
+    """{setting: its distinct values over the runs in `runs`}, from each run's provenance.json (what the stage ran
+    with: PEDM's epochs, episodes per kind and severity, ...)."""
+    found: dict[str, set] = {}
+    for env, method, seed in runs[["env", "method", "seed"]].drop_duplicates().itertuples(index=False):
+        for name, value in read_run_settings(cfg, env, method, int(seed)).items():
+            found.setdefault(name, set()).add(value)
+    return {name: sorted(values, key=str) for name, values in found.items()}

@@ -1,0 +1,144 @@
+"""PEDM's protocol table (notebook 14) from per-run metrics.csv files laid out as the `pedm` stage writes them.
+
+Synthetic runs in a temporary results tree, read through the same reader as claim 7 (`pedm_stage.read_metrics`):
+a baseline and a Masksembles run of two seeds each, whose per-severity means are chosen so the Student-t
+interval over the seeds can be computed by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from paper_lib.pipeline.config import load_run_config
+from paper_lib.pipeline.layout import Layout
+from paper_lib.reporting.pedm_figures import kind_figure
+from paper_lib.reporting.pedm_reading import protocol_differences, protocol_reading
+from paper_lib.reporting.pedm_table import (NO_RUNS, RUN_COLUMNS, protocol_runs, protocol_settings, protocol_table,
+                                            save_protocol_tables, severity_cells)
+
+REPO = Path(__file__).resolve().parents[2]
+ENV = "HalfCheetah-v5"
+KINDS = ("bm_factor", "act_factor", "act_offset", "act_noise", "force_vector")
+#: Per (method, seed): each scorer's per-severity mean AUROC (PEDM's `mean` rows); the kinds are spread around it.
+MEANS = {("baseline", 0): {"pedm": (0.50, 0.90)}, ("baseline", 1): {"pedm": (0.54, 0.92)},
+         ("masksembles", 0): {"value_std": (0.60, 0.80), "pedm": (0.52, 0.94)},
+         ("masksembles", 1): {"value_std": (0.64, 0.86), "pedm": (0.56, 0.96)}}
+T_975_1 = 12.706204736174698  # Student's t, 0.975 quantile, 1 degree of freedom (two seeds)
+
+
+def _metrics(method: str, seed: int) -> pd.DataFrame:
+    rows = []
+    for scorer, severities in MEANS[(method, seed)].items():
+        for severity, mean in zip(("minor", "severe"), severities):
+            spread = np.linspace(-0.04, 0.04, len(KINDS))  # mean zero: the kinds average to `mean`
+            rows += [{"scorer": scorer, "kind": kind, "severity": severity, "auroc": mean + d, "aupr_out": 0.5,
+                      "fpr_at_95_tpr": 0.9, "delay_median": i + (1.0 if scorer == "value_std" else 3.0), "detected": 1.0, "false_alarm": 0.0}
+                     for i, (kind, d) in enumerate(zip(KINDS, spread))]
+            rows.append({"scorer": scorer, "kind": "mean", "severity": severity, "auroc": mean, "aupr_out": 0.5,
+                         "fpr_at_95_tpr": 0.9})
+    return pd.DataFrame(rows).assign(env=ENV, method=method, seed=seed)
+
+
+@pytest.fixture
+def cfg(tmp_path: Path):
+    """The paper profile's config over an empty results tree at `tmp_path`."""
+    return dataclasses.replace(load_run_config(REPO / "params.yaml"), root=tmp_path)
+
+
+def _write_runs(cfg) -> list[tuple[str, str, int]]:
+    runs = [(ENV, method, seed) for method, seed in MEANS]
+    for run in runs:
+        folder = cfg.layout.pedm_dir(*run)
+        folder.mkdir(parents=True)
+        _metrics(*run[1:]).to_csv(folder / "metrics.csv", index=False)
+        (folder / "provenance.json").write_text(json.dumps({"settings": {"epochs": 60, "test_episodes": 20}}))
+    return runs
+
+
+def test_the_table_is_the_mean_over_seeds_with_a_hand_computed_t_interval(cfg, tmp_path):
+    runs = protocol_runs(cfg, [*_write_runs(cfg), (ENV, "mc_dropout", 0)])  # a run that has not played: left out
+    assert list(runs.columns) == list(RUN_COLUMNS) and len(runs) == 6 * 2 * 6
+    cells = severity_cells(runs).set_index(["method", "severity", "scorer"])
+    pedm = cells.loc[("masksembles", "severe", "pedm")]  # seeds 0.94 and 0.96: mean 0.95, sd 0.01414, se 0.01
+    assert pedm.auroc == pytest.approx(0.95) and pedm.n_seeds == 2
+    assert (pedm.ci_low, pedm.ci_high) == pytest.approx((0.95 - T_975_1 * 0.01, 0.95 + T_975_1 * 0.01))
+
+    table = protocol_table(runs)
+    assert list(table.columns) == ["env", "method", "severity", "value_std", "pedm"]  # own measures, then detectors
+    assert table[["method", "severity"]].values.tolist() == [["baseline", "minor"], ["baseline", "severe"],
+                                                             ["masksembles", "minor"], ["masksembles", "severe"]]
+    row = table[(table.method == "masksembles") & (table.severity == "severe")].iloc[0]
+    assert row["pedm"] == "0.95 [0.82, 1.08] (n=2)" and row["value_std"] == "0.83 [0.45, 1.21] (n=2)"
+    assert table[table.method == "baseline"]["value_std"].tolist() == ["", ""]  # a baseline has no measure of its own
+
+    layout = Layout(tmp_path / "out")
+    layout.tables.mkdir(parents=True)
+    save_protocol_tables(runs, layout.table("pedm_protocol"), layout.pedm_protocol_runs, "paper")
+    assert "0.95 [0.82, 1.08] (n=2)" in layout.table("pedm_protocol", "md").read_text()
+    assert "runs per env: HalfCheetah-v5 4" in layout.table("pedm_protocol", "md").read_text()
+    back = pd.read_csv(layout.pedm_protocol_runs)  # the long form: any cell can be recomputed from it
+    means = back[(back.kind == "mean") & (back.scorer == "pedm") & (back.method == "masksembles")]
+    assert means[means.severity == "severe"].auroc.mean() == pytest.approx(0.95)
+
+
+def test_one_seed_shows_no_interval(cfg):
+    _write_runs(cfg)
+    table = protocol_table(protocol_runs(cfg, [(ENV, "baseline", 0)]))
+    assert table["pedm"].tolist() == ["0.50 (n=1)", "0.90 (n=1)"]
+
+
+def test_a_cut_metrics_file_is_one_error_naming_the_stage_to_run_again(cfg):
+    runs = _write_runs(cfg)
+    path = cfg.layout.pedm_dir(ENV, "masksembles", 1) / "metrics.csv"
+    path.write_bytes(path.read_bytes()[:-25])  # cut mid-row
+    with pytest.raises(ValueError, match=r"metrics.csv is incomplete \(cut off\?\).*"
+                                         r"`dvc repro -s pedm@HalfCheetah-v5-masksembles-1`"):
+        protocol_runs(cfg, runs)
+
+
+def test_a_foreign_metrics_file_is_refused(cfg):
+    runs = _write_runs(cfg)
+    other = cfg.layout.pedm_dir(ENV, "baseline", 1) / "metrics.csv"
+    other.write_bytes((cfg.layout.pedm_dir(ENV, "baseline", 0) / "metrics.csv").read_bytes())  # seed 0's copy
+    with pytest.raises(ValueError, match=r"pedm@HalfCheetah-v5-baseline-1"):
+        protocol_runs(cfg, runs)
+
+
+def test_no_runs_give_a_table_that_says_so(cfg, tmp_path):
+    runs = protocol_runs(cfg, [(ENV, "baseline", 0)])
+    assert runs.empty and list(runs.columns) == list(RUN_COLUMNS)
+    layout = Layout(tmp_path / "out")
+    layout.tables.mkdir(parents=True)
+    table = save_protocol_tables(runs, layout.table("pedm_protocol"), layout.pedm_protocol_runs, "tiny")
+    assert table.iloc[0, 0] == NO_RUNS and NO_RUNS in layout.table("pedm_protocol", "md").read_text()
+    assert protocol_reading(runs) == ["No run has played PEDM's protocol yet: nothing to read."]
+
+
+def test_the_prose_is_computed_from_the_runs_and_their_settings(cfg):
+    runs = protocol_runs(cfg, _write_runs(cfg))
+    settings = protocol_settings(cfg, runs)
+    assert settings == {"epochs": [60], "test_episodes": [20]}
+    lines = protocol_differences(settings, [ENV, "Walker2d-v5"], ["baseline", "masksembles"])
+    text = "\n".join(lines)
+    assert "60 epochs, not PEDM's 2000" in text and "20 test episodes per kind and severity, not PEDM's 100" in text
+    assert "Walker2d-v5's `foot`" in text and "force -0.1 / -15 N" in text
+    minor, severe = protocol_reading(runs)
+    # severe: over the 4 runs PEDM averages (0.90 + 0.92 + 0.94 + 0.96) / 4 = 0.93, value_std (0.80 + 0.86) / 2 = 0.83
+    assert "best **pedm** 0.93" in severe and "best agent measure value_std 0.83 (over 2 member runs)" in severe
+    # delays 3..7 steps per kind for PEDM (median 5), 1..5 for value std (median 3)
+    assert ("median delay of PEDM 5 steps (100% of episodes flagged), the shortest value_std's 3 steps (100% of "
+            "episodes flagged)") in severe
+
+
+def test_the_figure_has_a_panel_per_env_and_severity(cfg):
+    runs = protocol_runs(cfg, _write_runs(cfg))
+    fig = kind_figure(runs, "auroc")
+    assert [ax.get_title() for ax in fig.axes] == [f"{ENV}, minor", f"{ENV}, severe"]
+    with pytest.raises(ValueError, match="kind_figure draws one of"):
+        kind_figure(runs, "aupr")
