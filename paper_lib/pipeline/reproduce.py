@@ -6,8 +6,8 @@
 
 The default command only reads committed files and never steps an env: each run's `score` stage where DVC
 finds it stale (scoring reads a committed dataset), each member run's `common_score` (the baseline's states of its
-seed) and each MuJoCo run's `sequence_score` (the sequence detectors on its dataset) likewise, and every table and figure stage, forced, for the runs and
-recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
+seed) and each MuJoCo run's `sequence_score` (the sequence detectors on its dataset) likewise, and every table and
+figure stage, forced, for the runs and recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
 the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments) belongs to `--recollect`: MuJoCo's last
 float bits differ across CPUs and chaotic episodes amplify them, so a simulated number would move from machine to
 machine. Runs of the profile that lack a checkpoint, dataset or evaluation are listed (printed and in

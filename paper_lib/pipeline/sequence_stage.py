@@ -81,8 +81,8 @@ def read_sequence_scores(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tu
         frames.append(metrics)
         replicates |= {(*run, ood_set, measure): reps
                        for (ood_set, measure), reps in replicates_by_metric(metrics, matrix).items()}
-    return (pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["env", "method", "seed", "ood_set",
-                                                                                      "measure", "auroc"])), replicates
+    empty = pd.DataFrame(columns=["env", "method", "seed", "ood_set", "measure", "auroc"])
+    return (pd.concat(frames, ignore_index=True) if frames else empty), replicates
 
 
 def main(argv: list[str] | None = None) -> None:

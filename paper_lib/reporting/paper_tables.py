@@ -90,12 +90,12 @@ def auroc_table_with_sequences(metrics: pd.DataFrame, sequence_metrics: pd.DataF
             rows.append(row)
             texts.append(text)
     order = {m: i for i, m in enumerate(methods)}
-    full = pd.concat([table.assign(method=table["method"].astype(str), _text=False),
-                      pd.DataFrame(rows).assign(_text=True)], ignore_index=True)
+    full = pd.concat([table.assign(method=table["method"].astype(str)), pd.DataFrame(rows)], ignore_index=True)
     full = full.assign(_order=full["method"].map(order)).sort_values(["_order", "measure"], kind="stable")
+    # full.index still counts the rows as concatenated: the table's first, then the sequence rows in `texts`' order
     text = pd.DataFrame([texts[i - len(table)] if i >= len(table) else {c: "" for c in table.columns}
                          for i in full.index], columns=table.columns)
-    return full.drop(columns=["_order", "_text"]).reset_index(drop=True)[list(table.columns)], text
+    return full.drop(columns="_order").reset_index(drop=True)[list(table.columns)], text
 
 
 def sequence_note(sequence_metrics: pd.DataFrame) -> str:
