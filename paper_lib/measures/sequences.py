@@ -129,25 +129,37 @@ def sliding_windows(ep: np.ndarray, w: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(ep, w, axis=0).transpose(0, 2, 1)
 
 
+def causal_windows(ep: np.ndarray, w: int) -> np.ndarray:
+    """(T, d) -> (T, w, d): the window ending at every step, its first state repeated where fewer than w precede."""
+    return sliding_windows(np.concatenate([np.repeat(ep[:1], w - 1, axis=0), ep]), w)
+
+
 class WindowForestDetector:
     """DEXTER-S: per-dimension isolation forests on features of the last ``window`` observations.
 
     Step t (t >= window - 1) is scored by the window ending at t; the first window - 1 steps get the
     first window's score, as DEXTER does (``DEXTER_detector.py`` l. 238-243: it looks up to window - 1
-    steps ahead there). Episodes need at least ``window`` steps.
+    steps ahead there). Episodes need at least ``window`` steps. With ``causal=True`` no step looks ahead:
+    every step's window ends at it, the episode's first observation repeated in front where fewer than
+    ``window`` precede (`causal_windows`), in fitting as in scoring, so episodes of any length are scored.
     """
 
-    def __init__(self, window: int = 10, n_estimators: int = 100, seed: int = 2023) -> None:
+    def __init__(self, window: int = 10, n_estimators: int = 100, seed: int = 2023, causal: bool = False) -> None:
         if isinstance(window, bool) or not isinstance(window, int) or window < 2:
             raise ValueError(f"window must be an integer >= 2 (a slope needs two steps), got {window!r}.")
-        self.window, self.n_estimators, self.seed = window, int(n_estimators), int(seed)
+        self.window, self.n_estimators, self.seed, self.causal = window, int(n_estimators), int(seed), bool(causal)
         self.forests_: list[IsolationForest] | None = None
 
+    @property
+    def _min_length(self) -> int:
+        return 1 if self.causal else self.window
+
     def _features(self, eps: list[np.ndarray]) -> list[np.ndarray]:
-        return [window_features(sliding_windows(ep, self.window)) for ep in eps]
+        windows = causal_windows if self.causal else sliding_windows
+        return [window_features(windows(ep, self.window)) for ep in eps]
 
     def fit(self, episodes: Sequence[np.ndarray]) -> "WindowForestDetector":
-        eps = check_episodes(episodes, "episodes (ID training)", min_length=self.window)
+        eps = check_episodes(episodes, "episodes (ID training)", min_length=self._min_length)
         feats = np.concatenate(self._features(eps))  # (n_windows, d, 7)
         if len(feats) < 2:
             raise ValueError(f"WindowForestDetector.fit got {len(feats)} window(s); an isolation forest needs at "
@@ -160,9 +172,9 @@ class WindowForestDetector:
     def score(self, episodes: Sequence[np.ndarray]) -> list[np.ndarray]:
         if self.forests_ is None:
             raise ValueError("WindowForestDetector.score called before fit; call fit(ID episodes) first.")
-        eps = check_episodes(episodes, "episodes", min_length=self.window, n_features=self.n_features_)
+        eps = check_episodes(episodes, "episodes", min_length=self._min_length, n_features=self.n_features_)
         out = []
         for feats in self._features(eps):
             s = np.mean([-f.decision_function(feats[:, j]) for j, f in enumerate(self.forests_)], axis=0)
-            out.append(np.concatenate([np.full(self.window - 1, s[0]), s]))
+            out.append(s if self.causal else np.concatenate([np.full(self.window - 1, s[0]), s]))
         return out

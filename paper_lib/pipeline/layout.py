@@ -13,6 +13,7 @@ exactly those: a path renamed here or there and not in both places fails that te
       scores/<env>/<method>/seed<s>/                     its OOD scores           (score)
       common_scores/<env>/<method>/seed<s>/              a member run on the baseline's states of its seed (common_score)
       pedm/<env>/<method>/seed<s>/                       a MuJoCo run under PEDM's protocol (pedm, issue 69)
+      sequence_scores/<env>/<method>/seed<s>/            the sequence detectors on a MuJoCo run's dataset (sequence_score)
       pedm/budget_curve.csv, budget_auroc.csv            PEDM's validation curve and AUROC probes that chose its epochs
       tables/pedm_protocol_runs.csv                      every run's PEDM-protocol metrics, as notebook 14 read them
       tables/<stem>.{csv,md,tex}, figures/<stem>.{png,pdf}   what the notebooks make (STAGE_TABLES, STAGE_FIGURES)
@@ -112,6 +113,8 @@ RUN_STAGES = ("train", "collect", "evaluate", "score")
 COMMON_STAGE = "common_score"
 #: The per-run stage of PEDM's protocol (issue 69), for the MuJoCo runs (`pedm_runs`; runs.yaml's pedm_runs).
 PEDM_STAGE = "pedm"
+#: The per-run stage of the sequence detectors on a MuJoCo run's main dataset (issue 69; runs.yaml's sequence_runs).
+SEQUENCE_STAGE = "sequence_score"
 
 
 def results_dir(root: str | Path, profile: str) -> Path:
@@ -135,6 +138,12 @@ def pedm_runs(runs: list[Run]) -> list[Run]:
     from paper_lib.agents.envs import MUJOCO_ENVS
 
     return [run for run in runs if run[0] in MUJOCO_ENVS]
+
+
+def sequence_runs(runs: list[Run]) -> list[Run]:
+    """The runs among `runs` whose states the sequence detectors score (paper_lib/pipeline/sequence_stage.py): the
+    MuJoCo ones, whose observations are vectors (an Atari frame stack has 28k dimensions, one forest each)."""
+    return pedm_runs(runs)
 
 
 def seed_name(seed: int) -> str:
@@ -349,6 +358,10 @@ class Layout:
         """Every run's PEDM-protocol folder, and the budget files that set PEDM's epochs (read by `pedm_protocol`)."""
         return self.results / "pedm"
 
+    def sequence_scores_dir(self, env_id: str, method: str, seed: int) -> Path:
+        """A MuJoCo run's sequence-detector metrics on its own dataset (paper_lib/pipeline/sequence_stage.py)."""
+        return self.results / "sequence_scores" / env_id / method / seed_name(seed)
+
     @property
     def pedm_budget_curve(self) -> Path:
         """PEDM's validation curve per epoch on one run (paper_lib/experiments/pedm_budget.py), which set its epochs."""
@@ -356,7 +369,11 @@ class Layout:
 
     def stage_paths(self, stage: str, run: Run | None = None) -> StagePaths:
         """The paths under results/ dvc.yaml's `stage` names; `run` for a per-run stage (RUN_STAGES, COMMON_STAGE,
-        PEDM_STAGE)."""
+        PEDM_STAGE, SEQUENCE_STAGE)."""
+        if stage == SEQUENCE_STAGE:
+            if run is None or not sequence_runs([run]):
+                raise ValueError(f"stage {stage!r} is per MuJoCo run: give one, e.g. ('HalfCheetah-v5', 'baseline', 0)")
+            return StagePaths(deps=(self.dataset_path(*run),), outs=(self.sequence_scores_dir(*run),))
         if stage == PEDM_STAGE:
             if run is None or not pedm_runs([run]):
                 raise ValueError(f"stage {stage!r} is per MuJoCo run: give one, e.g. ('HalfCheetah-v5', 'baseline', 0)")

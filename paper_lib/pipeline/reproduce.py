@@ -6,8 +6,8 @@
 
 The default command only reads committed files and never steps an env: each run's `score` stage where DVC
 finds it stale (scoring reads a committed dataset), each member run's `common_score` (the baseline's states of its
-seed) likewise, and every table and figure stage, forced, for the runs and
-recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
+seed) and each MuJoCo run's `sequence_score` (the sequence detectors on its dataset) likewise, and every table and
+figure stage, forced, for the runs and recordings that exist. Whatever simulates (collection, evaluation episodes, the recordings notebooks 00 and 07 draw,
 the `guard`, `spawn`, `value_level` and `ensembles_scores` experiments) belongs to `--recollect`: MuJoCo's last
 float bits differ across CPUs and chaotic episodes amplify them, so a simulated number would move from machine to
 machine. Runs of the profile that lack a checkpoint, dataset or evaluation are listed (printed and in
@@ -25,7 +25,8 @@ import tempfile
 from pathlib import Path
 
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS, common_runs, pedm_runs
+from paper_lib.pipeline.layout import (ENSEMBLE_PARTS, QUICKSTART_RUN, RUN_FOLDERS, SEQUENCE_STAGE, common_runs,
+                                       pedm_runs, sequence_runs)
 from paper_lib.pipeline.run_list import write_run_list
 from paper_lib.agents.envs import MUJOCO_ENVS
 from paper_lib.pipeline.status import (
@@ -162,6 +163,10 @@ def reproduce(cfg: RunConfig, rescore: bool = False) -> None:
     if common:
         _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
               *[f"common_score@{stage_suffix(*run)}" for run in common]])
+    sequences = sequence_runs(runs)  # the sequence detectors on the MuJoCo runs' datasets (issue 69; Table 2's rows)
+    if sequences:
+        _dvc(["repro", "--single-item", *(["--force"] if rescore else []),
+              *[f"{SEQUENCE_STAGE}@{stage_suffix(*run)}" for run in sequences]])
     if _ensembles_trained(cfg):
         make_ensemble_folders(cfg)  # the ensembles notebook's declared inputs
     stages, skipped = table_stages(cfg)

@@ -19,7 +19,7 @@ import yaml
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Run, common_runs, pedm_runs, stage_suffix  # not status: `config use` imports this module
+from paper_lib.pipeline.layout import Run, common_runs, pedm_runs, sequence_runs, stage_suffix  # not status: `config use` imports this module
 
 RUN_LIST = "runs.yaml"
 KEY = "committed_runs"
@@ -27,6 +27,8 @@ KEY = "committed_runs"
 COMMON_KEY = "common_runs"
 #: The MuJoCo runs, whose `pedm` stages play PEDM's protocol (paper_lib/pipeline/pedm_stage.py).
 PEDM_KEY = "pedm_runs"
+#: The MuJoCo runs, whose `sequence_score` stages score their dataset with the sequence detectors (sequence_stage.py).
+SEQUENCE_KEY = "sequence_runs"
 HEADER = """\
 # The runs of the active profile that have train, collect, evaluate and score stages in dvc.yaml: those with a
 # committed checkpoint, so `dvc repro` on a fresh clone trains nothing (paper_lib/pipeline/run_list.py).
@@ -35,6 +37,7 @@ HEADER = """\
 # common_runs: the member runs whose seed has a baseline run; their `common_score` stages score the baseline's states.
 # pedm_runs: the MuJoCo runs whose `pedm` stage (PEDM's protocol) has run, or was asked for with
 #   python -m paper_lib.pipeline.run_list --pedm <env> <method> <seed>      (then `dvc repro -s pedm@<env>-<method>-<seed>`)
+# sequence_runs: the MuJoCo runs; their `sequence_score` stages score the run's dataset with the sequence detectors.
 """
 
 
@@ -47,12 +50,13 @@ def run_list_text(cfg: RunConfig, runs: list[Run], pedm: list[Run] = ()) -> str:
     """runs.yaml's bytes for `runs` (in the profile's order, so equal lists give equal bytes), and under
     COMMON_KEY the member runs among them whose seed has a baseline run (the `common_score` stages), under PEDM_KEY
     the MuJoCo runs among them whose PEDM-protocol metrics exist, plus `pedm` (the `pedm` stages: so `dvc repro`
-    on the committed tree plays no protocol, as it trains and collects nothing)."""
+    on the committed tree plays no protocol, as it trains and collects nothing), under SEQUENCE_KEY the MuJoCo runs
+    among them (the `sequence_score` stages: they read committed datasets and simulate nothing)."""
     order = {run: i for i, run in enumerate(cfg.runs())}
     listed = sorted(set(runs), key=lambda run: order.get(run, len(order)))
     played = [run for run in pedm_runs(listed) if run in pedm or (cfg.layout.pedm_dir(*run) / "metrics.csv").is_file()]
     return (f"{HEADER}profile: {cfg.profile}\n{_entries(KEY, listed)}{_entries(COMMON_KEY, common_runs(listed))}"
-            f"{_entries(PEDM_KEY, played)}")
+            f"{_entries(PEDM_KEY, played)}{_entries(SEQUENCE_KEY, sequence_runs(listed))}")
 
 
 def read_run_list(root: str | Path = ".", key: str = KEY) -> tuple[str | None, list[Run]]:

@@ -51,6 +51,65 @@ def auroc_table(metrics: pd.DataFrame, methods: list[str], value: str = "auroc")
     return wide.reset_index().rename_axis(columns=None)
 
 
+#: Table 2's rows of the sequence detectors (`scoring.sequence_scores.SEQUENCE_DETECTORS`), and what their cells say
+#: where they have no number: the run's `sequence_score` stage has not run, or the env is not one they score.
+SEQUENCE_ROWS = ("episode_mean", "window_forest")
+NOT_SCORED = "not scored"
+NOT_APPLICABLE = "n/a"
+
+
+def auroc_table_with_sequences(metrics: pd.DataFrame, sequence_metrics: pd.DataFrame, methods: list[str],
+                               sequence_envs: tuple[str, ...], float_format: str = "%.2f",
+                               ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(Table 2 with a row per method for each sequence detector, the text its cells show: `save_table`'s cell_text).
+
+    The other rows are `auroc_table(metrics, methods)`'s, unchanged. A sequence cell is the mean AUROC over the seeds
+    of the cell whose `sequence_score` stage has run (`sequence_metrics`, the same OOD set), and says "(k of n seeds)"
+    where that is fewer than the cell's n seeds; NOT_SCORED where none has run; NOT_APPLICABLE in an env outside
+    `sequence_envs` (Atari: pixel observations); NaN, as every row, where the method has no run in the env.
+    """
+    table = auroc_table(metrics, methods)
+    envs = [c for c in table.columns if c not in ("method", "measure")]
+    seeds = metrics.groupby(["env", "method"])["seed"].nunique()
+    scored = (sequence_metrics.groupby(["env", "method", "measure"])["auroc"].agg(["mean", "count"])
+              if len(sequence_metrics) else pd.DataFrame(columns=["mean", "count"]))
+    rows, texts = [], []
+    for method in dict.fromkeys(table["method"].astype(str)):
+        for detector in SEQUENCE_ROWS:
+            row, text = {"method": method, "measure": detector}, {"method": "", "measure": ""}
+            for env in envs:
+                n, (value, note) = int(seeds.get((env, method), 0)), (np.nan, "")
+                if n and env not in sequence_envs:
+                    note = NOT_APPLICABLE
+                elif n and (env, method, detector) not in scored.index:
+                    note = NOT_SCORED
+                elif n:
+                    value, k = scored.loc[(env, method, detector), ["mean", "count"]]
+                    note = f"{float_format % value} ({int(k)} of {n} seeds)" if k < n else ""
+                row[env], text[env] = value, note
+            rows.append(row)
+            texts.append(text)
+    order = {m: i for i, m in enumerate(methods)}
+    full = pd.concat([table.assign(method=table["method"].astype(str)), pd.DataFrame(rows)], ignore_index=True)
+    full = full.assign(_order=full["method"].map(order)).sort_values(["_order", "measure"], kind="stable")
+    # full.index still counts the rows as concatenated: the table's first, then the sequence rows in `texts`' order
+    text = pd.DataFrame([texts[i - len(table)] if i >= len(table) else {c: "" for c in table.columns}
+                         for i in full.index], columns=table.columns)
+    return full.drop(columns="_order").reset_index(drop=True)[list(table.columns)], text
+
+
+def sequence_note(sequence_metrics: pd.DataFrame) -> str:
+    """Table 2's caption on its sequence-detector rows, and on PEDM, which it cannot hold yet."""
+    seeds = seeds_per_cell(sequence_metrics, ["env", "method", "measure"]) if len(sequence_metrics) else "no run yet"
+    return (f"episode_mean and window_forest: the DEEDEE-style running episode mean and the DEXTER-style window "
+            f"forest (causal), fit on the ID fit episodes and scored on the same states as every other row, each state "
+            f"from its episode's kept states up to it (`sequence_score` stage; {seeds}); '{NOT_SCORED}': that stage "
+            f"has not run for the cell's runs; '{NOT_APPLICABLE}': Atari (pixel observations). PEDM is not in this "
+            "table: it scores transitions (s, a, s') and these datasets record no actions; it needs a recollection "
+            "that records them (`make recollect`, issue 69 item 1); its AUROCs under PEDM's own protocol are in the "
+            "`pedm` stage's files.")
+
+
 def read_reported(folder: str | Path, name: str) -> pd.DataFrame:
     """One of the paper's reported tables (data/paper_reported/reported_<name>.csv), in long form."""
     path = Path(folder) / f"reported_{name}.csv"

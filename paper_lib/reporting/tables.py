@@ -241,6 +241,20 @@ def _mc_plain_columns(display: pd.DataFrame, flat: pd.DataFrame, float_format: s
     return shown, shortened
 
 
+def _with_cell_text(shown: pd.DataFrame, df: pd.DataFrame, cell_text: pd.DataFrame) -> pd.DataFrame:
+    """``shown`` with each cell where ``cell_text`` holds a non-empty string replaced by that string."""
+    if not (_has_default_index(df) and cell_text.shape == df.shape and list(cell_text.columns) == list(df.columns)):
+        raise ValueError(f"save_table: cell_text must have the table's shape {df.shape} and columns {list(df.columns)} "
+                         f"with a default index, got shape {cell_text.shape} and columns {list(cell_text.columns)}.")
+    if list(shown.columns) != [str(c) for c in df.columns]:
+        raise ValueError("save_table: cell_text cannot be combined with intervals (they reshape the shown columns).")
+    out = shown.copy()
+    text = cell_text.to_numpy(dtype=object)
+    for i, j in zip(*np.nonzero([[isinstance(x, str) and x != "" for x in row] for row in text])):
+        out.iat[i, j] = text[i, j]
+    return out
+
+
 def save_table(
     df: pd.DataFrame,
     stem: str | os.PathLike[str],
@@ -249,6 +263,7 @@ def save_table(
     label: str | None = None,
     intervals: dict[str, tuple[str, str]] | None = None,
     seeds: str | None = "n_seeds",
+    cell_text: pd.DataFrame | None = None,
 ) -> dict[str, Path]:
     """Write ``stem``.csv, .md and .tex atomically; return their paths keyed by format.
 
@@ -261,7 +276,9 @@ def save_table(
     CSV keeps the three columns apart. An estimate whose frame carries its Monte Carlo spread
     (``<estimate>_scoring_std`` and ``n_scoring_seeds``, as `summarize_seeds` gives for auroc) is shown
     to the decimals that noise supports (`mc_standard_error`, `mc_decimals`), and where a cell drops
-    one, MC_DIGITS_NOTE joins the caption.
+    one, MC_DIGITS_NOTE joins the caption. ``cell_text`` (a frame of ``df``'s shape, same columns, default
+    index) gives text that Markdown and LaTeX show in place of a cell where it is a non-empty string ('not
+    scored'); the CSV keeps ``df``'s value (NaN, a number), so code reading it still gets numbers.
     """
     if not isinstance(df, pd.DataFrame) or df.shape[1] == 0:
         raise ValueError(f"save_table: expected a DataFrame with at least one column, got {type(df).__name__}.")
@@ -284,6 +301,8 @@ def save_table(
     if shortened:
         caption = f"{caption.strip()} {MC_DIGITS_NOTE}."
     shown = _format_cells(display, float_format)
+    if cell_text is not None:
+        shown = _with_cell_text(shown, df, cell_text)
     right = [pd.api.types.is_numeric_dtype(flat[c]) and not pd.api.types.is_bool_dtype(flat[c]) if c in flat else True
              for c in display.columns]
     paths = {fmt: _stem_path(stem, f".{fmt}") for fmt in ("csv", "md", "tex")}

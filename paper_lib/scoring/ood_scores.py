@@ -82,26 +82,16 @@ def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int 
         raise ValueError(f"n_scoring_seeds={n_scoring_seeds!r}: need a positive integer (e.g. 5).")
     check_labels(dataset)  # before any work: a label contradicting its source would score OOD states as ID
     model, vecnormalize = _model_and_normalizer(run, vecnormalize, seed % 2**31)
-    id_data, ood_data = dataset.id_only(), dataset.ood_only()
-    if len(id_data) == 0 or len(ood_data) == 0:
-        raise ValueError(f"the dataset has {len(id_data)} ID and {len(ood_data)} OOD states; scoring needs both.")
-    fit_idx, eval_idx = split_fit_eval(len(id_data), rng, groups=id_data.episode)
-    id_fit, id_eval = id_data.subset(fit_idx), id_data.subset(eval_idx)
-    noise = noise_ood_states(id_eval, rng, magnitude=noise_magnitude, vecnormalize=vecnormalize)
-    parts = {"id": id_eval, "perturbed": ood_data, "noise": noise}
+    id_fit, parts = evaluation_parts(dataset, rng, noise_magnitude, vecnormalize)
     stochastic = isinstance(model.policy, MemberActorCriticPolicy) and model.policy.samples_members
     torch_seeds = scoring_seeds(seed, int(n_scoring_seeds) if stochastic else 1)
     obs_scores = _observation_detectors(id_fit, parts)  # no randomness: once for all scoring seeds
     scored = [{name: frame.assign(**obs_scores[name]) for name, frame in _score_parts(model, id_fit, parts, s).items()}
               for s in torch_seeds]  # [scoring seed][part] -> one column per measure and detector
     metric_rows, rocs, replicates = [], [], []
-    for ood_set in ("perturbed", "noise"):
+    for ood_set, resample_seed in resample_seeds(rng).items():
         columns = [c for c in scored[0]["id"].columns if c not in _META]
-        id_clusters = _clusters(parts["id"], "id")
-        ood_clusters = _clusters(parts[ood_set], "id" if ood_set == "noise" else "ood")  # noise: its ID episode
-        # Every measure of an OOD set gets the same cluster resamples: replicate i of two measures comes from
-        # the same resampled states, so differences between measures of a run are paired.
-        resample_seed = int(rng.integers(2**63 - 1))
+        id_clusters, ood_clusters = bootstrap_clusters(parts, ood_set)
         for c in columns:
             id_s = np.stack([frames["id"][c].to_numpy() for frames in scored])
             ood_s = np.stack([frames[ood_set][c].to_numpy() for frames in scored])
@@ -114,12 +104,44 @@ def score_run(run: Checkpoint | BaseAlgorithm, dataset: StateDataset, seed: int 
     first = scored[0]
     frames = [pd.concat([first["id"], first[ood_set]], ignore_index=True).assign(ood_set=ood_set)
               for ood_set in ("perturbed", "noise")]
-    return RunScores(pd.concat(frames, ignore_index=True), pd.DataFrame(metric_rows)[_METRIC_ORDER],
+    return RunScores(pd.concat(frames, ignore_index=True), pd.DataFrame(metric_rows)[METRIC_ORDER],
                      pd.concat(rocs, ignore_index=True), pd.concat(replicates, ignore_index=True))
 
 
+def evaluation_parts(dataset: StateDataset, rng: np.random.Generator, noise_magnitude: float = 2.0,
+                     vecnormalize: VecNormalize | None = None) -> tuple[StateDataset, dict[str, StateDataset]]:
+    """(ID fit states, {"id", "perturbed", "noise": the states every measure and detector is evaluated on}).
+
+    The first draws of `rng` (the run's seed): the ID episodes split in halves (`split_fit_eval`, whole episodes),
+    then the noise added to the held-apart half. Whoever scores a run's dataset with more detectors (the
+    `sequence_score` stage) calls this with a fresh rng of the run's seed and gets the very same states.
+    """
+    id_data, ood_data = dataset.id_only(), dataset.ood_only()
+    if len(id_data) == 0 or len(ood_data) == 0:
+        raise ValueError(f"the dataset has {len(id_data)} ID and {len(ood_data)} OOD states; scoring needs both.")
+    fit_idx, eval_idx = split_fit_eval(len(id_data), rng, groups=id_data.episode)
+    id_fit, id_eval = id_data.subset(fit_idx), id_data.subset(eval_idx)
+    noise = noise_ood_states(id_eval, rng, magnitude=noise_magnitude, vecnormalize=vecnormalize)
+    return id_fit, {"id": id_eval, "perturbed": ood_data, "noise": noise}
+
+
+def resample_seeds(rng: np.random.Generator) -> dict[str, int]:
+    """The cluster-bootstrap seed of each OOD set, drawn after `evaluation_parts` in this order.
+
+    Every measure of an OOD set gets the same cluster resamples: replicate i of two measures comes from the same
+    resampled states, so differences between measures of a run are paired (across stages too, where a stage
+    replays `evaluation_parts` and then this with the run's seed).
+    """
+    return {ood_set: int(rng.integers(2**63 - 1)) for ood_set in ("perturbed", "noise")}
+
+
+def bootstrap_clusters(parts: dict[str, StateDataset], ood_set: str) -> tuple[np.ndarray, np.ndarray]:
+    """(ID clusters, OOD clusters) of one OOD set's metrics: noise states keep their ID episode's cluster."""
+    return _clusters(parts["id"], "id"), _clusters(parts[ood_set], "id" if ood_set == "noise" else "ood")
+
+
 _META = ("label", "source", "episode", "step", "config_index", "ood_set")
-_METRIC_ORDER = ["ood_set", "measure", "auroc", "auroc_ci_low", "auroc_ci_high", "aupr_in", "aupr_out",
+METRIC_ORDER = ["ood_set", "measure", "auroc", "auroc_ci_low", "auroc_ci_high", "aupr_in", "aupr_out",
                  "fpr_at_95_tpr", "detection_error", "auroc_scoring_std", "auroc_scoring_min", "auroc_scoring_max",
                  "n_scoring_seeds", "ci", "n_id", "n_ood", "n_id_clusters", "n_ood_clusters"]
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from sklearn.ensemble import IsolationForest
 
-from paper_lib.measures.sequences import (EpisodeMeanDetector, WindowForestDetector, episodes_of, sliding_windows,
-                                          window_features)
+from paper_lib.measures.sequences import (EpisodeMeanDetector, WindowForestDetector, causal_windows, episodes_of,
+                                          sliding_windows, window_features)
 
 
 def test_episode_mean_by_hand():
@@ -58,6 +58,25 @@ def test_window_forest_is_isolation_forest_on_window_features():
     expected = np.mean([-forests[j].decision_function(feats[:, j]) for j in range(2)], axis=0)
     np.testing.assert_allclose(got[3:], expected)
     np.testing.assert_allclose(got[:3], expected[0])  # DEXTER: the first window's score for the first steps
+
+
+def test_causal_window_forest_never_looks_ahead_and_scores_short_episodes():
+    w = causal_windows(np.array([[1.0], [2.0], [3.0]]), 3)
+    assert w[:, :, 0].tolist() == [[1, 1, 1], [1, 1, 2], [1, 2, 3]]  # the first state repeated in front
+    train = toy_episodes(3, 30, 0)
+    det = WindowForestDetector(window=4, n_estimators=20, seed=7, causal=True).fit(train)
+    forests = [IsolationForest(n_estimators=20, random_state=7).fit(
+        np.concatenate([window_features(causal_windows(ep, 4)) for ep in train])[:, j]) for j in range(2)]
+    test = toy_episodes(1, 12, 1)[0]
+    feats = window_features(causal_windows(test, 4))
+    expected = np.mean([-forests[j].decision_function(feats[:, j]) for j in range(2)], axis=0)
+    np.testing.assert_allclose(det.score([test])[0], expected)
+    changed = test.copy()
+    changed[6:] += 50.0  # a later change moves no earlier step's score
+    np.testing.assert_array_equal(det.score([changed])[0][:6], det.score([test])[0][:6])
+    assert det.score([test[:1]])[0].shape == (1,)  # one step is an episode too
+    with pytest.raises(ValueError, match="at least 4 are needed"):
+        WindowForestDetector(window=4).fit(train).score([test[:3]])  # DEXTER's own rule needs a whole window
 
 
 def test_window_forest_seeded_batch_invariant_and_detects_a_jump():

@@ -112,6 +112,7 @@ def test_main_command_lists_missing_runs_and_trains_nothing(tiny_repo):
     for stage in ("rewards", "ood", "uncertainty_over_time", "training_and_perturbations", "paper_vs_us",
                   "example_states", "quickstart"):
         assert f"Running stage '{stage}'" in log, log
+    assert "Running stage 'sequence_score@HalfCheetah-v5-masksembles-0'" in log, log  # it reads the dataset only
     for stage in ("study", "scaling", "ensembles", "pedm_protocol"):  # their inputs are made by long runs only
         assert f"{stage}: skipped" in log and f"Running stage '{stage}'" not in log, log
     assert "Running stage 'ensembles_scores'" not in log, log
@@ -129,9 +130,10 @@ def test_dvc_repro_plans_no_training_collection_or_evaluation_on_the_committed_t
         "HalfCheetah-v5-baseline-0", "HalfCheetah-v5-masksembles-0"]
     done = _run([str(BIN / "dvc"), "stage", "list", "--name-only"], tiny_repo)
     per_run = [name for name in done.stdout.split() if "@" in name]
-    # 4 stages per run, and the member run's common_score (the baseline's states of its seed)
-    assert done.returncode == 0 and len(per_run) == 9 and not any(name.endswith("-1") for name in per_run), done.stdout
+    # 4 stages per run, each MuJoCo run's sequence_score, and the member run's common_score (the baseline's states)
+    assert done.returncode == 0 and len(per_run) == 11 and not any(name.endswith("-1") for name in per_run), done.stdout
     assert "common_score@HalfCheetah-v5-masksembles-0" in per_run, done.stdout
+    assert {"sequence_score@HalfCheetah-v5-baseline-0", "sequence_score@HalfCheetah-v5-masksembles-0"} <= set(per_run)
     # nothing of them is planned: `dvc status` (what `dvc repro` acts on) finds every per-run stage up to date (the
     # tiny copy has no study database, so `dvc repro --dry` would stop at the study stages, which long runs feed)
     done = _run([str(BIN / "dvc"), "status", "--json"], tiny_repo)

@@ -20,14 +20,16 @@ from paper_lib.pipeline.layout import (
     NOTEBOOKS,
     PEDM_STAGE,
     RUN_STAGES,
+    SEQUENCE_STAGE,
     STAGE_TABLES,
     TABLE_FORMATS,
     Layout,
     StagePaths,
     common_runs,
     pedm_runs,
+    sequence_runs,
 )
-from paper_lib.pipeline.run_list import PEDM_KEY, read_run_list
+from paper_lib.pipeline.run_list import PEDM_KEY, SEQUENCE_KEY, read_run_list
 from paper_lib.pipeline.status import stage_suffix
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,6 +58,9 @@ def mismatches(stages: dict[str, StagePaths], layout: Layout, runs: list[tuple[s
     expected = {f"{stage}@{stage_suffix(*run)}": layout.stage_paths(stage, run) for stage in RUN_STAGES for run in runs}
     expected |= {f"{COMMON_STAGE}@{stage_suffix(*run)}": layout.stage_paths(COMMON_STAGE, run) for run in common_runs(runs)}
     expected |= {f"{PEDM_STAGE}@{stage_suffix(*run)}": layout.stage_paths(PEDM_STAGE, run) for run in played}
+    assert read_run_list(ROOT, SEQUENCE_KEY)[1] == sequence_runs(runs)  # every MuJoCo run (runs.yaml)
+    expected |= {f"{SEQUENCE_STAGE}@{stage_suffix(*run)}": layout.stage_paths(SEQUENCE_STAGE, run)
+                 for run in sequence_runs(runs)}
     expected |= {stage: layout.stage_paths(stage) for stage in layout.stage_names() if stage not in RUN_STAGES}
     problems = [f"stage {name}: in dvc.yaml, not in the layout (paper_lib/pipeline/layout.py)"
                 for name in sorted(set(stages) - set(expected))]
