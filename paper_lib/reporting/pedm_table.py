@@ -6,7 +6,7 @@ AUROC, AP, FPR@95 and our detection delay, plus kind ``mean``, PEDM's per-severi
 puts one row per (env, method, severity) and one column per scorer; a cell is the mean over the seeds of that
 per-severity mean, with Student's t 95% interval over the seeds where there are two or more and the seed count, as
 "0.95 [0.91, 0.99] (n=4)". Rows run down rather than severities across: 6 scorers x 2 severities side by side would
-not fit the site's column (docs/deviations.md). `protocol_runs` is the long form every cell is computed from, one
+not fit the site's column (docs/deviations.md). `pedm_runs.protocol_runs` reads the long form every cell is computed from, one
 row per (run, scorer, kind, severity), written beside the table so any reader can recompute it.
 """
 
@@ -19,8 +19,6 @@ import pandas as pd
 
 from paper_lib.common.io import write_text_atomic
 from paper_lib.measures.definitions import ALL_MEMBER_MEASURES
-from paper_lib.pipeline.config import RunConfig
-from paper_lib.pipeline.pedm_stage import read_metrics, read_run_settings
 from paper_lib.reporting.tables import csv_text, save_table
 from paper_lib.scoring.peer_scores import PEER_DETECTORS
 from paper_lib.scoring.statistics import t_interval
@@ -39,16 +37,6 @@ NO_RUNS = ("no MuJoCo run of this profile has PEDM-protocol metrics yet: give on
 PEDM_TEST_EPISODES = 100
 
 
-def protocol_runs(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:
-    """RUN_COLUMNS of every run among `runs` whose `pedm` stage ran (`pedm_stage.read_metrics`: a cut or foreign
-    metrics.csv is one error naming `dvc repro -s pedm@...`); empty, with these columns, where none has."""
-    metrics = read_metrics(cfg, runs)
-    out = metrics[list(RUN_COLUMNS)].copy()
-    if len(out):
-        out["seed"] = out["seed"].astype(int)
-    return out.reset_index(drop=True)
-
-
 def scorer_order(scorers: list[str] | pd.Series) -> list[str]:
     """The scorers found, the agent's own measures first (ALL_MEMBER_MEASURES), then PEER_DETECTORS, then others."""
     found = list(dict.fromkeys(scorers))
@@ -60,7 +48,7 @@ def _check_runs(runs: pd.DataFrame) -> None:
     missing = [c for c in RUN_COLUMNS if c not in runs.columns]
     if missing:
         raise ValueError(f"PEDM's protocol table needs the long form with columns {list(RUN_COLUMNS)}; {missing} are "
-                         "missing: read it with `pedm_table.protocol_runs`")
+                         "missing: read it with `pedm_runs.protocol_runs`")
 
 
 def severity_cells(runs: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
@@ -124,13 +112,3 @@ def save_protocol_tables(runs: pd.DataFrame, table_stem: Path, runs_csv: Path, p
     save_table(table, table_stem, table_caption(runs, profile))
     write_text_atomic(runs_csv, csv_text(runs.sort_values(["env", "method", "seed"], kind="stable")))
     return table
-
-
-def protocol_settings(cfg: RunConfig, runs: pd.DataFrame) -> dict[str, list]:
-    """{setting: its distinct values over the runs in `runs`}, from each run's provenance.json (what the stage ran
-    with: PEDM's epochs, episodes per kind and severity, ...)."""
-    found: dict[str, set] = {}
-    for env, method, seed in runs[["env", "method", "seed"]].drop_duplicates().itertuples(index=False):
-        for name, value in read_run_settings(cfg, env, method, int(seed)).items():
-            found.setdefault(name, set()).add(value)
-    return {name: sorted(values, key=str) for name, values in found.items()}

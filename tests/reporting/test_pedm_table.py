@@ -17,9 +17,10 @@ import pytest
 
 from paper_lib.pipeline.config import load_run_config
 from paper_lib.pipeline.layout import Layout
+from paper_lib.pipeline.pedm_runs import protocol_runs, protocol_settings
 from paper_lib.reporting.pedm_figures import kind_figure
 from paper_lib.reporting.pedm_reading import protocol_differences, protocol_reading
-from paper_lib.reporting.pedm_table import (NO_RUNS, RUN_COLUMNS, protocol_runs, protocol_settings, protocol_table,
+from paper_lib.reporting.pedm_table import (NO_RUNS, RUN_COLUMNS, protocol_table,
                                             save_protocol_tables, severity_cells)
 
 REPO = Path(__file__).resolve().parents[2]
