@@ -16,7 +16,13 @@ results/<profile>/pedm/<env>/<method>/seed<s>/:
     metrics.csv      per (scorer, kind, severity): AUROC, AP (aupr_out), FPR@95, the cluster-bootstrap AUROC
                      interval (episodes), the detection delay; kind ``mean``: PEDM's per-severity means
     pedm_fit.csv     PEDM's training curve on this run (train loss, validation MSE per epoch)
-    provenance.json  the run, the SHA-256 of its checkpoint files, and the settings the stage ran with
+    table2_metrics.csv, table2_replicates.npy
+                     PEDM on Table 2's states (HalfCheetah, Swimmer, Ant: `ood.transitions.EXACT_ENVS`): the same
+                     PEDM scores one simulated transition from each state the `score` stage evaluates in the run's
+                     dataset (`scoring.transition_scores`); per OOD set the `score` stage's metric columns and the
+                     AUROC bootstrap replicates (row i for row i), as the `sequence_score` stage writes them
+    provenance.json  the run, the SHA-256 of its checkpoint files (and of its dataset where Table 2's states are
+                     scored), and the settings the stage ran with
 
 Cost (docs/deviations.md): 255k env steps and one PEDM fit per run, about 4.5 CPU-min for HalfCheetah; about 0.4 MB
 (a baseline) to 0.9 MB (a member run) of files.
@@ -42,10 +48,17 @@ from paper_lib.common.io import atomic_dir, write_json_atomic
 from paper_lib.ood.pedm_collect import LoadedAgent
 from paper_lib.pipeline.config import RunConfig, read_params
 from paper_lib.pipeline.run_cli import run_stage_main
-from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, provenance_record, read_score_csv,
-                                             run_identity)
+from paper_lib.ood.datasets import StateDataset
+from paper_lib.ood.transitions import EXACT_ENVS
+from paper_lib.pipeline.layout import stage_suffix
+from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
+                                             check_dataset_identity, check_provenance, load_run_dataset,
+                                             provenance_record, read_replicate_matrix, read_score_csv,
+                                             replicates_by_metric, run_identity)
 
 FILES = ("steps.npz", "metrics.csv", "pedm_fit.csv", PROVENANCE_FILE)
+#: The files of PEDM on Table 2's states, written where the env is one of `ood.transitions.EXACT_ENVS`.
+TABLE2_FILES = ("table2_metrics.csv", "table2_replicates.npy")
 SECTION = "pedm"
 #: The per-step scores in steps.npz: float16 with the last 2 of its 10 mantissa bits cleared (8 bits: relative
 #: precision 0.4%, a monotone rounding toward zero, so rankings change only by new ties). The metrics in metrics.csv
@@ -150,8 +163,12 @@ def _log(message: str, start: float) -> None:
     print(f"[pedm {time.perf_counter() - start:7.1f} s] {message}", file=sys.stderr, flush=True)
 
 
-def pedm_files(agent: LoadedAgent, env_id: str, seed: int, settings: PEDMSettings) -> dict[str, Any]:
-    """The stage's work on one loaded agent (`pedm_collect.LoadedAgent`): {file name: DataFrame or arrays}."""
+def pedm_files(agent: LoadedAgent, env_id: str, seed: int, settings: PEDMSettings,
+               dataset: StateDataset | None = None) -> dict[str, Any]:
+    """The stage's work on one loaded agent (`pedm_collect.LoadedAgent`): {file name: DataFrame or arrays}.
+
+    With the run's main `dataset`, the fitted PEDM also scores Table 2's states (TABLE2_FILES), after everything
+    else, so the protocol's files are the same with it or without it."""
     from paper_lib.measures.dynamics import PEDMConfig
     from paper_lib.measures.estimates import uncertainty
     from paper_lib.ood.pedm_collect import THRESHOLD_SEED_OFFSET, play_id, play_tests
@@ -178,7 +195,16 @@ def pedm_files(agent: LoadedAgent, env_id: str, seed: int, settings: PEDMSetting
     _log("metrics", start)
     fit = pd.DataFrame(detectors.pedm.history_, columns=["train_loss", "val_mse"])
     fit.insert(0, "epoch", np.arange(1, len(fit) + 1))
-    return {"steps.npz": steps_arrays(steps, conditions), "metrics.csv": metrics, "pedm_fit.csv": fit}
+    files = {"steps.npz": steps_arrays(steps, conditions), "metrics.csv": metrics, "pedm_fit.csv": fit}
+    if dataset is not None:
+        from paper_lib.scoring.transition_scores import score_pedm_on_dataset
+
+        table2 = score_pedm_on_dataset(detectors.pedm, dataset, seed,
+                                       lambda obs: agent.model.predict(obs, deterministic=True)[0], agent.policy_obs,
+                                       settings.n_bootstrap)  # the run's n_bootstrap, as its `score` stage's
+        files |= {"table2_metrics.csv": table2.metrics, "table2_replicates": table2.replicates}
+        _log("scored Table 2's states", start)
+    return files
 
 
 def run_pedm(cfg: RunConfig, env_id: str, method: str, seed: int, settings: PEDMSettings) -> Path:
@@ -191,17 +217,52 @@ def run_pedm(cfg: RunConfig, env_id: str, method: str, seed: int, settings: PEDM
     out = pedm_dir(cfg, env_id, method, seed)
     agent = load_agent(checkpoint, env_id, method, seed)  # a missing or foreign checkpoint: one error, before any work
     identity = run_identity(env_id, method, seed)
+    dataset = None
+    if env_id in EXACT_ENVS:  # Table 2's states: the run's dataset, checked before any work too
+        dataset = load_run_dataset(cfg.dataset_path(env_id, method, seed), env_id, method, seed)
+        check_dataset_identity(dataset.metadata, cfg.dataset_path(env_id, method, seed), env_id, method, seed)
     with stage_lock(out, "running PEDM's protocol"):
-        provenance = {**provenance_record(identity, {name: checkpoint / name for name in CHECKPOINT_INPUTS}),
-                      "settings": asdict(settings)}
-        files = pedm_files(agent, env_id, seed, settings)
+        provenance = {**provenance_record(identity, _inputs(cfg, env_id, method, seed)), "settings": asdict(settings)}
+        files = pedm_files(agent, env_id, seed, settings, dataset)
         tag = dict(identity)
         with atomic_dir(out) as tmp:
             (tmp / "steps.npz").write_bytes(_npz_bytes(files["steps.npz"]))
             (tmp / "metrics.csv").write_text(_csv(files["metrics.csv"].assign(**tag)))
             (tmp / "pedm_fit.csv").write_text(_csv(files["pedm_fit.csv"].assign(**tag)))
+            if dataset is not None:
+                metrics = files["table2_metrics.csv"]
+                (tmp / "table2_metrics.csv").write_text(_csv(metrics.assign(**tag)))
+                np.save(tmp / "table2_replicates.npy", _replicate_matrix(metrics, files["table2_replicates"]))
             write_json_atomic(tmp / PROVENANCE_FILE, provenance)
     return out
+
+
+def _inputs(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Path]:
+    """What a run's `pedm` files are made from: its checkpoint, and its dataset where Table 2's states are scored."""
+    checkpoint = cfg.checkpoint_dir(env_id, method, seed)
+    inputs = {name: checkpoint / name for name in CHECKPOINT_INPUTS}
+    return inputs | ({"dataset": cfg.dataset_path(env_id, method, seed)} if env_id in EXACT_ENVS else {})
+
+
+def read_table2_scores(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.DataFrame, dict]:
+    """PEDM on Table 2's states: (metrics, replicates keyed (env, method, seed, ood_set, measure)) of the runs among
+    `runs` whose `pedm` stage scored them, as `sequence_stage.read_sequence_scores` gives the sequence detectors'. A run
+    without the files is left out (the table says 'not scored'); files made from another dataset or checkpoint than
+    the run's current ones, cut off, or of another run are one error naming the stage to run again."""
+    frames, replicates = [], {}
+    for run in runs:
+        folder = pedm_dir(cfg, *run)
+        if run[0] not in EXACT_ENVS or not (folder / "table2_metrics.csv").is_file():
+            continue
+        identity, rerun = run_identity(*run), f"run it again (`dvc repro -s pedm@{stage_suffix(*run)}`)"
+        check_provenance(folder, identity, _inputs(cfg, *run), rerun, rerun, required=True)
+        metrics = read_score_csv(folder, "table2_metrics.csv", identity, rerun)
+        matrix = read_replicate_matrix(folder, len(metrics), rerun, name="table2_replicates.npy")
+        frames.append(metrics)
+        replicates |= {(*run, ood_set, measure): reps
+                       for (ood_set, measure), reps in replicates_by_metric(metrics, matrix).items()}
+    empty = pd.DataFrame(columns=["env", "method", "seed", "ood_set", "measure", "auroc"])
+    return (pd.concat(frames, ignore_index=True) if frames else empty), replicates
 
 
 def read_metrics(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:

@@ -532,9 +532,10 @@ def read_score_csv(folder: Path, name: str, identity: dict[str, Any], rescore: s
     return frame
 
 
-def read_replicate_matrix(folder: Path, rows: int, rescore: str) -> np.ndarray:
-    """replicates.npy, one row per row of the metrics.csv beside it (`rows`), or one error naming it and `rescore`."""
-    path = folder / "replicates.npy"
+def read_replicate_matrix(folder: Path, rows: int, rescore: str, name: str = "replicates.npy") -> np.ndarray:
+    """replicates.npy (or `name`), one row per row of the metrics beside it (`rows`), or one error naming it and
+    `rescore`."""
+    path = folder / name
     if not path.is_file():
         raise FileNotFoundError(f"{path} is missing: the scores in {folder} are not whole; {rescore}")
     try:
@@ -543,7 +544,8 @@ def read_replicate_matrix(folder: Path, rows: int, rescore: str) -> np.ndarray:
         raise ValueError(f"{path} is incomplete (cut off?): it is not a readable .npy ({type(err).__name__}: "
                          f"{err}); {rescore}") from None
     if matrix.ndim != 2 or len(matrix) != rows:
-        raise ValueError(f"{path} holds {len(matrix) if matrix.ndim else 0} rows but the metrics.csv beside it has "
+        raise ValueError(f"{path} holds {len(matrix) if matrix.ndim else 0} rows but the "
+                         f"{name.replace('replicates.npy', 'metrics.csv')} beside it has "
                          f"{rows} (one row of replicates per metric): one of them is cut off or of another scoring; "
                          f"{rescore}")
     return matrix

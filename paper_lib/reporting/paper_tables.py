@@ -8,6 +8,7 @@ rows: the bootstraps and intervals themselves live in `scoring.statistics`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -51,35 +52,42 @@ def auroc_table(metrics: pd.DataFrame, methods: list[str], value: str = "auroc")
     return wide.reset_index().rename_axis(columns=None)
 
 
-#: Table 2's rows of the sequence detectors (`scoring.sequence_scores.SEQUENCE_DETECTORS`), and what their cells say
-#: where they have no number: the run's `sequence_score` stage has not run, or the env is not one they score.
+#: Table 2's rows of the peer detectors scored in stages of their own: the sequence detectors
+#: (`scoring.sequence_scores.SEQUENCE_DETECTORS`, the `sequence_score` stage) and PEDM (`scoring.transition_scores`,
+#: the `pedm` stage), and what their cells say where they have no number: the run's stage has not run, or the env is
+#: not one the detector scores.
 SEQUENCE_ROWS = ("episode_mean", "window_forest")
+PEER_ROWS = (*SEQUENCE_ROWS, "pedm")
 NOT_SCORED = "not scored"
 NOT_APPLICABLE = "n/a"
 
 
 def auroc_table_with_sequences(metrics: pd.DataFrame, sequence_metrics: pd.DataFrame, methods: list[str],
-                               sequence_envs: tuple[str, ...], float_format: str = "%.2f",
+                               sequence_envs: tuple[str, ...] | Mapping[str, tuple[str, ...]],
+                               float_format: str = "%.2f", rows: tuple[str, ...] = SEQUENCE_ROWS,
                                ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(Table 2 with a row per method for each sequence detector, the text its cells show: `save_table`'s cell_text).
+    """(Table 2 with a row per method for each peer detector of `rows`, the text its cells show: `save_table`'s
+    cell_text).
 
-    The other rows are `auroc_table(metrics, methods)`'s, unchanged. A sequence cell is the mean AUROC over the seeds
-    of the cell whose `sequence_score` stage has run (`sequence_metrics`, the same OOD set), and says "(k of n seeds)"
-    where that is fewer than the cell's n seeds; NOT_SCORED where none has run; NOT_APPLICABLE in an env outside
-    `sequence_envs` (Atari: pixel observations); NaN, as every row, where the method has no run in the env.
+    The other rows are `auroc_table(metrics, methods)`'s, unchanged. A detector's cell is the mean AUROC over the seeds
+    of the cell whose stage has scored it (`sequence_metrics`: its rows of that detector, the same OOD set), and says
+    "(k of n seeds)" where that is fewer than the cell's n seeds; NOT_SCORED where none has; NOT_APPLICABLE in an env
+    outside `sequence_envs` (one tuple for every detector, or detector -> envs; Atari: pixel observations); NaN, as
+    every row, where the method has no run in the env.
     """
+    envs_of = sequence_envs if isinstance(sequence_envs, Mapping) else dict.fromkeys(rows, sequence_envs)
     table = auroc_table(metrics, methods)
     envs = [c for c in table.columns if c not in ("method", "measure")]
     seeds = metrics.groupby(["env", "method"])["seed"].nunique()
     scored = (sequence_metrics.groupby(["env", "method", "measure"])["auroc"].agg(["mean", "count"])
               if len(sequence_metrics) else pd.DataFrame(columns=["mean", "count"]))
-    rows, texts = [], []
+    added, texts = [], []
     for method in dict.fromkeys(table["method"].astype(str)):
-        for detector in SEQUENCE_ROWS:
+        for detector in rows:
             row, text = {"method": method, "measure": detector}, {"method": "", "measure": ""}
             for env in envs:
                 n, (value, note) = int(seeds.get((env, method), 0)), (np.nan, "")
-                if n and env not in sequence_envs:
+                if n and env not in envs_of[detector]:
                     note = NOT_APPLICABLE
                 elif n and (env, method, detector) not in scored.index:
                     note = NOT_SCORED
@@ -87,10 +95,10 @@ def auroc_table_with_sequences(metrics: pd.DataFrame, sequence_metrics: pd.DataF
                     value, k = scored.loc[(env, method, detector), ["mean", "count"]]
                     note = f"{float_format % value} ({int(k)} of {n} seeds)" if k < n else ""
                 row[env], text[env] = value, note
-            rows.append(row)
+            added.append(row)
             texts.append(text)
     order = {m: i for i, m in enumerate(methods)}
-    full = pd.concat([table.assign(method=table["method"].astype(str)), pd.DataFrame(rows)], ignore_index=True)
+    full = pd.concat([table.assign(method=table["method"].astype(str)), pd.DataFrame(added)], ignore_index=True)
     full = full.assign(_order=full["method"].map(order)).sort_values(["_order", "measure"], kind="stable")
     # full.index still counts the rows as concatenated: the table's first, then the sequence rows in `texts`' order
     text = pd.DataFrame([texts[i - len(table)] if i >= len(table) else {c: "" for c in table.columns}
@@ -98,16 +106,22 @@ def auroc_table_with_sequences(metrics: pd.DataFrame, sequence_metrics: pd.DataF
     return full.drop(columns="_order").reset_index(drop=True)[list(table.columns)], text
 
 
-def sequence_note(sequence_metrics: pd.DataFrame) -> str:
-    """Table 2's caption on its sequence-detector rows, and on PEDM, which it cannot hold yet."""
-    seeds = seeds_per_cell(sequence_metrics, ["env", "method", "measure"]) if len(sequence_metrics) else "no run yet"
+def sequence_note(peer_metrics: pd.DataFrame) -> str:
+    """Table 2's caption on its peer-detector rows: the sequence detectors and PEDM (`PEER_ROWS`)."""
+    def seeds(names: tuple[str, ...]) -> str:
+        part = peer_metrics[peer_metrics["measure"].isin(names)] if len(peer_metrics) else peer_metrics
+        return seeds_per_cell(part, ["env", "method", "measure"]) if len(part) else "no run yet"
+
     return (f"episode_mean and window_forest: the DEEDEE-style running episode mean and the DEXTER-style window "
             f"forest (causal), fit on the ID fit episodes and scored on the same states as every other row, each state "
-            f"from its episode's kept states up to it (`sequence_score` stage; {seeds}); '{NOT_SCORED}': that stage "
-            f"has not run for the cell's runs; '{NOT_APPLICABLE}': Atari (pixel observations). PEDM is not in this "
-            "table: it scores transitions (s, a, s') and these datasets record no actions; it needs a recollection "
-            "that records them (`make recollect`, issue 69 item 1); its AUROCs under PEDM's own protocol are in the "
-            "`pedm` stage's files.")
+            f"from its episode's kept states up to it (`sequence_score` stage; {seeds(SEQUENCE_ROWS)}). pedm: PEDM's "
+            "probabilistic dynamics ensemble, fit on 50 ID episodes the agent plays in the `pedm` stage, scoring one "
+            "simulated transition from each of the same states (the state its observation describes, under its own "
+            "physics, the agent's deterministic action; `ood.transitions`) "
+            f"({seeds(('pedm',))}); '{NOT_APPLICABLE}' in Walker2d, whose observation clips velocities and so does "
+            "not determine the state, and in Atari. "
+            f"'{NOT_SCORED}': the stage has not run for the cell's runs; '{NOT_APPLICABLE}' for every peer row in "
+            "Atari (pixel observations).")
 
 
 def read_reported(folder: str | Path, name: str) -> pd.DataFrame:

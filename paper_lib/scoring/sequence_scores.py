@@ -1,7 +1,7 @@
 """The two sequence detectors (DEEDEE-style episode mean, DEXTER-style window forest) on a run's main ID/OOD dataset.
 
-They read only observation sequences, so they score Table 2's states without new collection (PEDM needs the actions
-behind each state, which the main datasets do not record: `make recollect`, issue 69 item 1). The states are the
+They read only observation sequences, so they score Table 2's states without new collection (PEDM needs a transition
+from each state: `scoring.transition_scores`, in the `pedm` stage). The states are the
 very ones the `score` stage evaluates: `ood_scores.evaluation_parts` with a fresh rng of the run's seed gives the same
 ID fit episodes, held-apart ID episodes and noise states, and `ood_scores.resample_seeds` then the same cluster
 resamples, so these AUROCs and their intervals pair with every other measure's of the run.
@@ -94,14 +94,26 @@ def score_sequences(dataset: StateDataset, seed: int, n_bootstrap: int, noise_ma
     id_fit, parts = evaluation_parts(replace(dataset, policy_obs=None), rng, noise_magnitude)
     detectors = fit_sequence_detectors(id_fit, int(seed))
     scores = {name: score_part(detectors, data) for name, data in parts.items()}
+    metrics, replicates = metrics_on_parts(scores, SEQUENCE_DETECTORS, parts, rng, n_bootstrap, level)
+    return SequenceScores(scores, metrics, replicates)
+
+
+def metrics_on_parts(scores: dict[str, dict[str, np.ndarray]], detectors: tuple[str, ...],
+                     parts: dict[str, StateDataset], rng: np.random.Generator, n_bootstrap: int,
+                     level: float = 0.95) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(metrics, AUROC replicates) of `detectors` on both OOD sets, as the `score` stage computes its own.
+
+    ``scores`` is part -> detector -> one score per state of ``parts[part]``; ``rng`` is the run's seed's generator
+    right after `evaluation_parts`, so the cluster resamples are the `score` stage's (`resample_seeds`).
+    """
     rows, replicates = [], []
     for ood_set, resample_seed in resample_seeds(rng).items():
         id_clusters, ood_clusters = bootstrap_clusters(parts, ood_set)
-        for name in SEQUENCE_DETECTORS:
+        for name in detectors:
             row, reps = measure_metrics(scores["id"][name], scores[ood_set][name], np.random.default_rng(resample_seed),
                                         n_boot=n_bootstrap, level=level, id_clusters=id_clusters,
                                         ood_clusters=ood_clusters)
             rows.append({"ood_set": ood_set, "measure": name, **row})
             replicates.append(pd.DataFrame({"ood_set": ood_set, "measure": name, "replicate": np.arange(reps.size),
                                             "auroc": reps}))
-    return SequenceScores(scores, pd.DataFrame(rows)[list(METRIC_ORDER)], pd.concat(replicates, ignore_index=True))
+    return pd.DataFrame(rows)[list(METRIC_ORDER)], pd.concat(replicates, ignore_index=True)

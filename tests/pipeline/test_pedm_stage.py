@@ -20,8 +20,9 @@ from paper_lib.measures.dynamics import PEDMConfig
 from paper_lib.ood.pedm_collect import CONDITIONS, play_id, play_tests
 from paper_lib.pipeline.config import load_run_config
 from paper_lib.pipeline.layout import PEDM_STAGE, Layout, pedm_runs
-from paper_lib.pipeline.pedm_stage import (FILES, PEDMSettings, load_agent, main, read_settings, read_steps,
-                                           run_pedm)
+from paper_lib.ood.datasets import StateDataset
+from paper_lib.pipeline.pedm_stage import (FILES, TABLE2_FILES, PEDMSettings, load_agent, main, read_settings,
+                                           read_steps, read_table2_scores, run_pedm)
 from paper_lib.scoring.pedm_scores import score_collection
 from paper_lib.scoring.peer_scores import PEER_DETECTORS, fit_peer_detectors
 
@@ -37,6 +38,9 @@ def _config(root: Path):
     cfg = cfg.__class__(**{**cfg.__dict__, "root": root})
     shutil.copytree(ROOT / "results" / cfg.profile / "checkpoints" / RUN[0] / RUN[1] / f"seed{RUN[2]}",
                     cfg.checkpoint_dir(*RUN))
+    cfg.dataset_path(*RUN).parent.mkdir(parents=True)
+    shutil.copy(ROOT / "results" / cfg.profile / "datasets" / RUN[0] / RUN[1] / f"seed{RUN[2]}.npz",
+                cfg.dataset_path(*RUN))
     return cfg
 
 
@@ -46,7 +50,7 @@ def written(tmp_path_factory) -> Path:
 
 
 def test_the_stage_writes_every_scorer_per_step_with_pedms_labels(written):
-    assert sorted(p.name for p in written.iterdir()) == sorted(FILES)
+    assert sorted(p.name for p in written.iterdir()) == sorted(FILES + TABLE2_FILES)
     steps = read_steps(written / "steps.npz")
     scorers = list(steps["scorers"])
     assert scorers == ["value_std", "policy_std", "policy_js", *PEER_DETECTORS]
@@ -83,12 +87,42 @@ def test_the_stage_writes_every_scorer_per_step_with_pedms_labels(written):
     fit = pd.read_csv(written / "pedm_fit.csv")
     assert fit["epoch"].tolist() == [1, 2] and fit["val_mse"].notna().all()
     provenance = json.loads((written / "provenance.json").read_text())
-    assert provenance["settings"]["epochs"] == 2 and set(provenance["sha256"]) == {"model.zip", "vecnormalize.pkl"}
+    assert provenance["settings"]["epochs"] == 2
+    assert set(provenance["sha256"]) == {"model.zip", "vecnormalize.pkl", "dataset"}
+
+
+def test_pedm_scores_table_2s_states_and_the_table_reads_them(written):
+    """The same PEDM scores one transition from each state the `score` stage evaluates; read back as Table 2's row,
+    and refused once the dataset they were made from has changed."""
+    cfg = _config_over(written)
+    metrics, replicates = read_table2_scores(cfg, [RUN, ("HalfCheetah-v5", "baseline", 0), ("Walker2d-v5", *RUN[1:])])
+    assert metrics[["ood_set", "measure"]].values.tolist() == [["perturbed", "pedm"], ["noise", "pedm"]]
+    assert set(metrics[["env", "method", "seed"]].itertuples(index=False, name=None)) == {RUN}  # the others: no file
+    assert metrics["auroc"].between(0, 1).all() and (metrics["auroc_ci_low"] <= metrics["auroc"]).all()
+    n_id = int((metrics["n_id"]).iloc[0])
+    assert n_id > 0 and metrics["n_ood"].tolist()[0] == 5000  # every perturbed state of the dataset
+    assert sorted(replicates) == [(*RUN, "noise", "pedm"), (*RUN, "perturbed", "pedm")]
+    assert all(len(r) == TINY.n_bootstrap for r in replicates.values())
+
+    data = StateDataset.load(cfg.dataset_path(*RUN))
+    data.states[0, 0] += 1e-3
+    data.save(cfg.dataset_path(*RUN))
+    with pytest.raises(ValueError, match=r"were made from dataset SHA-256 .* pedm@HalfCheetah-v5-mc_dropout-0"):
+        read_table2_scores(cfg, [RUN])
+
+
+def _config_over(written: Path):
+    """The config whose results tree holds `written` (a copy, so a test may change its files)."""
+    root = next(p for p in written.parents if p.name == "results").parent
+    copy = root.parent / f"{root.name}-copy"
+    shutil.copytree(root, copy)
+    cfg = load_run_config(ROOT / "params.yaml")
+    return cfg.__class__(**{**cfg.__dict__, "root": copy})
 
 
 def test_the_same_run_gives_the_same_bytes(written, tmp_path):
     again = run_pedm(_config(tmp_path), *RUN, TINY)
-    for name in FILES:
+    for name in FILES + TABLE2_FILES:
         assert (again / name).read_bytes() == (written / name).read_bytes(), name
 
 

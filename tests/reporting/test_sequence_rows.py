@@ -54,3 +54,21 @@ def test_no_sequence_file_at_all_still_gives_the_rows():
                                              ["baseline", "masksembles"], ("HalfCheetah-v5",))
     rows = table.measure != "knn_obs"
     assert (text.loc[rows, "HalfCheetah-v5"] == NOT_SCORED).all() and table.loc[rows, "HalfCheetah-v5"].isna().all()
+
+
+def test_pedm_row_is_not_applicable_where_its_envs_leave_the_env_out():
+    """PEDM scores Table 2's states only where an observation determines the state: n/a elsewhere, per detector."""
+    metrics = pd.concat([_metrics(), _metrics().query("env == 'HalfCheetah-v5'").assign(env="Walker2d-v5")])
+    peers = pd.DataFrame([{"env": env, "method": "baseline", "seed": seed, "measure": m, "auroc": 0.9}
+                          for env in ("HalfCheetah-v5", "Walker2d-v5") for seed in (0, 1)
+                          for m in ("episode_mean", "window_forest", "pedm") if not (m == "pedm" and env != "HalfCheetah-v5")])
+    envs = {"episode_mean": ("HalfCheetah-v5", "Walker2d-v5"), "window_forest": ("HalfCheetah-v5", "Walker2d-v5"),
+            "pedm": ("HalfCheetah-v5",)}
+    table, text = auroc_table_with_sequences(metrics, peers, ["baseline", "masksembles"], envs,
+                                             rows=("episode_mean", "window_forest", "pedm"))
+    cell, note = table.set_index(["method", "measure"]), text.set_index(table.set_index(["method", "measure"]).index)
+    assert cell.loc[("baseline", "pedm"), "HalfCheetah-v5"] == 0.9 and note.loc[("baseline", "pedm"), "HalfCheetah-v5"] == ""
+    assert note.loc[("baseline", "pedm"), "Walker2d-v5"] == NOT_APPLICABLE  # scored by the sequence rows, not PEDM
+    assert cell.loc[("baseline", "episode_mean"), "Walker2d-v5"] == 0.9
+    assert note.loc[("masksembles", "pedm"), "HalfCheetah-v5"] == NOT_SCORED
+    assert note.loc[("masksembles", "pedm"), ATARI] == NOT_APPLICABLE
