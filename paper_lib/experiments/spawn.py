@@ -12,8 +12,6 @@ every trained MuJoCo member-method run.
 
 from __future__ import annotations
 
-import hashlib
-from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -23,6 +21,7 @@ import torch as th
 
 from paper_lib.agents.checkpoints import Checkpoint
 from paper_lib.agents.envs import is_atari
+from paper_lib.experiments.kept_rows import fingerprint
 from paper_lib.measures.estimates import uncertainty
 from paper_lib.scoring.metrics import auroc
 
@@ -77,55 +76,14 @@ def spawn_rollouts(run: Checkpoint, episodes: int = 5, steps: int = 100, seed: i
     return rows.assign(airborne=rows.floor_contacts == 0)
 
 
-#: Beside rollouts.csv: which checkpoint (model.zip's SHA-256) and settings each run's rows come from.
-PLAYED_FILE = "played.csv"
-PLAYED_COLUMNS = ("env", "method", "seed", "episodes", "steps", "spawn_steps", "model_sha256")
+#: Part of each run's fingerprint (`kept_rows`): bump it when a change to this module should play every run again.
+ROWS_VERSION = 1
 
 
-def model_digest(checkpoint_dir: Path) -> str:
-    """SHA-256 of a run's model.zip: its rows are played again when it changes."""
-    return hashlib.sha256((Path(checkpoint_dir) / "model.zip").read_bytes()).hexdigest()
-
-
-@dataclass
-class KeptRollouts:
-    """What `reusable_rollouts` keeps: per run, its committed rollout rows and summary row."""
-
-    rollouts: dict[tuple[str, str, int], pd.DataFrame]
-    summary: dict[tuple[str, str, int], pd.DataFrame]
-    played: pd.DataFrame  # PLAYED_FILE's rows for every run asked about, as they will be once the others are played
-
-
-def reusable_rollouts(folder: Path, runs: list[tuple[str, str, int]], digests: dict[tuple[str, str, int], str],
-                      episodes: int, steps: int, spawn_steps: int) -> KeptRollouts:
-    """The committed rows (rollouts.csv, summary.csv) of the runs of `runs` played from the same checkpoint and
-    settings; the others are to be played.
-
-    Rollouts are simulation: MuJoCo differs in the last bits across CPUs and the episodes are chaotic, so a run played
-    again on another machine gives other rows, and the claims read them. So a run is played once, where it lands, and
-    its rows and summary row are kept while its model.zip (`digests`) and the settings stay. Rows committed before
-    `PLAYED_FILE` existed were played from the checkpoints committed with them (dvc.lock recorded the stage over
-    them): they are taken as played from today's. Delete `folder` to play every run again.
-    """
-    record = pd.DataFrame([{"env": r[0], "method": r[1], "seed": r[2], "episodes": episodes, "steps": steps,
-                            "spawn_steps": spawn_steps, "model_sha256": digests[r]} for r in runs],
-                          columns=list(PLAYED_COLUMNS))
-    files = {name: folder / f"{name}.csv" for name in ("rollouts", "summary")}
-    if not all(path.is_file() for path in files.values()):
-        return KeptRollouts({}, {}, record)
-    played = folder / PLAYED_FILE
-    same = (pd.read_csv(played) if played.is_file() else record).merge(record, on=list(PLAYED_COLUMNS))
-    unchanged = set(same[["env", "method", "seed"]].itertuples(index=False, name=None))
-
-    def by_run(path: Path) -> dict[tuple[str, str, int], pd.DataFrame]:
-        frame = pd.read_csv(path)
-        return {(env, method, int(seed)): rows.reset_index(drop=True)
-                for (env, method, seed), rows in frame.groupby(["env", "method", "seed"], sort=False)
-                if (env, method, int(seed)) in unchanged}
-
-    rollouts, summary = by_run(files["rollouts"]), by_run(files["summary"])
-    both = rollouts.keys() & summary.keys()
-    return KeptRollouts({r: rollouts[r] for r in both}, {r: summary[r] for r in both}, record)
+def run_fingerprint(checkpoint_dir: Path, episodes: int, steps: int, spawn_steps: int) -> str:
+    """What a run's rollout and summary rows come from: its model.zip and the settings (`kept_rows.fingerprint`)."""
+    return fingerprint([Path(checkpoint_dir) / "model.zip"], {"episodes": episodes, "steps": steps,
+                                                              "spawn_steps": spawn_steps, "version": ROWS_VERSION})
 
 
 def _airborne_auroc(scores: pd.Series, airborne: pd.Series) -> float:

@@ -24,6 +24,8 @@ Notebook 13 (the `value_level` stage) runs it on every run with a dataset.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import torch as th
@@ -31,6 +33,7 @@ from scipy.stats import spearmanr
 from sklearn.metrics import roc_auc_score
 
 from paper_lib.agents.checkpoints import Checkpoint
+from paper_lib.experiments.kept_rows import fingerprint
 from paper_lib.measures.definitions import torch_measures
 from paper_lib.measures.detectors import split_fit_eval
 from paper_lib.measures.estimates import member_outputs
@@ -110,6 +113,16 @@ def value_level_row(run: Checkpoint, dataset: StateDataset, seed: int, n_scoring
     n_members = policy.n_members if isinstance(policy, MemberActorCriticPolicy) else 1
     return {"n_members": n_members, "n_id": len(parts["id"]), "n_ood": len(parts["perturbed"]),
             "n_scoring_seeds": len(per_seed), **{c: float(per_seed[c].mean()) for c in _PER_SEED}}
+
+
+#: Part of each run's fingerprint (`kept_rows`): bump it when a change to this module should compute every run again.
+ROWS_VERSION = 1
+
+
+def run_fingerprint(checkpoint_dir: Path, dataset_path: Path, n_scoring_seeds: int) -> str:
+    """What a run's row comes from: its checkpoint's model and normalizer, its dataset and the scoring seeds."""
+    return fingerprint([Path(checkpoint_dir) / "model.zip", Path(checkpoint_dir) / "vecnormalize.pkl",
+                        Path(dataset_path)], {"n_scoring_seeds": n_scoring_seeds, "version": ROWS_VERSION})
 
 
 def value_level_table(rows: pd.DataFrame) -> pd.DataFrame:

@@ -12,8 +12,8 @@ import pytest
 from conftest import TINY
 from paper_lib import make_agent
 from paper_lib.agents.checkpoints import Checkpoint
-from paper_lib.experiments.spawn import (PLAYED_FILE, ROLLOUT_COLUMNS, floor_contacts, relative_uncertainty,
-                                         reusable_rollouts, spawn_reading, spawn_rollouts, spawn_summary, spawn_table)
+from paper_lib.experiments.spawn import (ROLLOUT_COLUMNS, floor_contacts, relative_uncertainty, spawn_reading, spawn_rollouts,
+                             spawn_summary, spawn_table)
 
 
 def _run(env_id: str, method: str, tmp_path: Path) -> Checkpoint:
@@ -68,23 +68,3 @@ def test_bad_inputs_raise_one_clear_error(tmp_path):
         spawn_rollouts(_run("HalfCheetah-v5", "baseline", tmp_path), episodes=1, steps=2)
     with pytest.raises(ValueError, match="episodes=0"):
         spawn_rollouts(_run("HalfCheetah-v5", "mc_dropout", tmp_path), episodes=0, steps=2)
-
-
-def test_a_landed_run_keeps_its_rows_and_a_new_or_retrained_one_is_played(tmp_path):
-    """Rollouts simulate (they differ across CPUs): committed rows stay while the checkpoint and settings do."""
-    runs = [("Ant-v5", "masksembles", 0), ("Ant-v5", "masksembles", 1)]
-    rows = pd.DataFrame({"env": "Ant-v5", "method": "masksembles", "seed": [0] * 3 + [1] * 3, "episode": 0,
-                         "step": [0, 1, 2] * 2, "value_std": [3.0, 1.0, 1.0, 2.0, 2.0, 1.0], "policy_std": 1.0,
-                         "floor_contacts": [0, 1, 1, 0, 0, 1]}).assign(airborne=lambda d: d.floor_contacts == 0)
-    rows.to_csv(tmp_path / "rollouts.csv", index=False)
-    spawn_summary(rows, 1).to_csv(tmp_path / "summary.csv", index=False)
-    digests = {runs[0]: "a", runs[1]: "b"}
-    first = reusable_rollouts(tmp_path, runs, digests, 5, 100, 1)  # committed before played.csv: taken as played
-    assert sorted(first.rollouts) == runs and first.rollouts[runs[1]]["value_std"].tolist() == [2.0, 2.0, 1.0]
-    first.played.to_csv(tmp_path / PLAYED_FILE, index=False)
-    new = ("Ant-v5", "masksembles", 2)
-    retrained = reusable_rollouts(tmp_path, [*runs, new], {**digests, runs[1]: "c", new: "d"}, 5, 100, 1)
-    assert sorted(retrained.rollouts) == [runs[0]] and sorted(retrained.summary) == [runs[0]]
-    assert retrained.played["model_sha256"].tolist() == ["a", "c", "d"]
-    assert not reusable_rollouts(tmp_path, runs, digests, 5, 50, 1).rollouts  # other settings: every run again
-    assert not reusable_rollouts(tmp_path / "none", runs, digests, 5, 100, 1).rollouts
