@@ -377,7 +377,8 @@ class Layout:
         if stage == PEDM_STAGE:
             if run is None or not pedm_runs([run]):
                 raise ValueError(f"stage {stage!r} is per MuJoCo run: give one, e.g. ('HalfCheetah-v5', 'baseline', 0)")
-            return StagePaths(deps=(self.checkpoint_dir(*run),), outs=(self.pedm_dir(*run),))
+            # the dataset: PEDM also scores Table 2's states (pedm_stage.TABLE2_FILES)
+            return StagePaths(deps=(self.checkpoint_dir(*run), self.dataset_path(*run)), outs=(self.pedm_dir(*run),))
         if stage == COMMON_STAGE:
             if run is None or run not in common_runs([run, (run[0], COMMON_STATES_OF, run[2])]):
                 raise ValueError(f"stage {stage!r} is per member run: give one, e.g. (env, 'masksembles', 0)")
