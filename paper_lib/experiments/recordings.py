@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +65,22 @@ def load_example_states(path: str | Path, settings: dict[str, Any]) -> tuple[dic
 
 # ---- notebook 00: the quickstart's episode ----------------------------------------------------------------------
 
+#: The member-free detectors the quickstart sets beside the members, in the order its figure draws them.
+QUICKSTART_DETECTORS = ("knn_obs", "mahalanobis_obs", "knn_features", "mahalanobis_features")
+#: Bump when what `score_gravity_episode` computes changes: a recording made before reads as one to make again.
+QUICKSTART_SCORES_VERSION = 1
+
+
+@dataclass
+class QuickstartScores:
+    """Every score the quickstart's figure ranks, computed once where the episode is played or recorded: torch and
+    BLAS round the last bits differently on other CPUs, and a rebuild must draw the same figure on every machine."""
+
+    n_fit: int  # ID states the detectors are fit on
+    calibration: dict[str, np.ndarray]  # per score (members, then detectors): the calibration ID states' scores, sorted
+    episode: dict[str, np.ndarray]  # per score, in the same order: its value at each step of the episode
+
+
 @dataclass
 class GravityEpisode:
     """One episode of a member policy whose gravity changes at `change_at`, and the ID states that calibrate it."""
@@ -74,13 +91,46 @@ class GravityEpisode:
     member_scores: pd.DataFrame  # step and each QUICKSTART_MEASURES as the agent acted
     shots: list[tuple[int, np.ndarray]]  # (step, rendered frame)
     rendering_problem: str | None  # why there are no frames, or None
+    scores: QuickstartScores  # every member measure and detector, on the calibration states and along the episode
 
 
 def quickstart_settings(folder: str | Path, episode_steps: int, change_at: int, gravity: list[float],
                         n_id_states: int, seed: int, frames: int) -> dict[str, Any]:
     return {"what": "quickstart", "checkpoint_sha256": file_digest(Path(folder) / "model.zip"),
             "episode_steps": episode_steps, "change_at": change_at, "gravity": list(gravity),
-            "n_id_states": n_id_states, "seed": seed, "frames": frames}
+            "n_id_states": n_id_states, "seed": seed, "frames": frames, "scores_version": QUICKSTART_SCORES_VERSION}
+
+
+def score_gravity_episode(policy: Any, id_obs: np.ndarray, observations: np.ndarray, member_scores: pd.DataFrame,
+                          seed: int) -> QuickstartScores:
+    """Fit the member-free detectors on half of the ID states (on observations and on the policy's features) and score
+    the other half, which calibrates every score's ID percentile, and the episode's observations. The members' episode
+    scores are the ones the agent had as it acted (`member_scores`)."""
+    import torch
+
+    from paper_lib.measures.detectors import KNNDetector, MahalanobisDetector, split_fit_eval
+    from paper_lib.measures.estimates import policy_features, uncertainty
+
+    torch.manual_seed(seed)  # MC Dropout / DropConnect members draw their masks from torch
+    fit_idx, calib_idx = split_fit_eval(len(id_obs), np.random.default_rng(seed))
+    features = partial(policy_features, policy)  # the policy's last hidden layer
+    raw = np.asarray
+    detectors = {"knn_obs": (KNNDetector(), raw), "mahalanobis_obs": (MahalanobisDetector(), raw),
+                 "knn_features": (KNNDetector(), features), "mahalanobis_features": (MahalanobisDetector(), features)}
+    calib_obs = id_obs[calib_idx]
+    calibration = dict(uncertainty(policy, calib_obs, list(QUICKSTART_MEASURES)))
+    episode = {name: member_scores[name].to_numpy() for name in QUICKSTART_MEASURES}
+    for name in QUICKSTART_DETECTORS:
+        detector, inputs = detectors[name]
+        detector.fit(inputs(id_obs[fit_idx]))
+        calibration[name], episode[name] = detector.score(inputs(calib_obs)), detector.score(inputs(observations))
+    return QuickstartScores(len(fit_idx), {name: np.sort(np.asarray(s)) for name, s in calibration.items()},
+                            {name: np.asarray(s) for name, s in episode.items()})
+
+
+def id_percentile(calibration: np.ndarray, scores: np.ndarray) -> np.ndarray:
+    """Share of the (sorted) calibration ID scores at most each of `scores`."""
+    return np.searchsorted(calibration, scores, side="right") / len(calibration)
 
 
 def play_gravity_change(folder: str | Path, episode_steps: int, change_at: int, gravity: list[float],
@@ -132,25 +182,33 @@ def play_gravity_change(folder: str | Path, episode_steps: int, change_at: int, 
         if terminated or truncated:
             break
     env.close()
-    return GravityEpisode(id_obs, len(np.unique(id_data.episode)), np.asarray(observations), pd.DataFrame(steps), shots,
-                          problem)
+    observations, member_scores = np.asarray(observations), pd.DataFrame(steps)
+    return GravityEpisode(id_obs, len(np.unique(id_data.episode)), observations, member_scores, shots, problem,
+                          score_gravity_episode(policy, id_obs, observations, member_scores, seed))
 
 
 def save_gravity_episode(path: str | Path, settings: dict[str, Any], episode: GravityEpisode) -> Path:
     shots = {f"shot_{step}": frame for step, frame in episode.shots}
     scores = episode.member_scores
+    ranked = {f"{part}__{name}": values for part in ("calibration", "episode")
+              for name, values in getattr(episode.scores, part).items()}
     return save_recording(path, {**settings, "id_episodes": episode.id_episodes, "shot_steps": [s for s, _ in episode.shots],
-                                 "rendering_problem": episode.rendering_problem},
+                                 "rendering_problem": episode.rendering_problem, "n_fit": episode.scores.n_fit,
+                                 "score_names": list(episode.scores.episode)},
                           id_obs=episode.id_obs, observations=episode.observations, steps=scores["step"].to_numpy(),
-                          **{f"measure_{name}": scores[name].to_numpy() for name in QUICKSTART_MEASURES}, **shots)
+                          **{f"measure_{name}": scores[name].to_numpy() for name in QUICKSTART_MEASURES}, **shots,
+                          **ranked)
 
 
 def load_gravity_episode(path: str | Path, settings: dict[str, Any]) -> GravityEpisode:
     recorded, arrays = load_recording(path, settings)
     scores = pd.DataFrame({"step": arrays["steps"], **{name: arrays[f"measure_{name}"] for name in QUICKSTART_MEASURES}})
+    names = recorded["score_names"]
+    ranked = QuickstartScores(recorded["n_fit"], {name: arrays[f"calibration__{name}"] for name in names},
+                              {name: arrays[f"episode__{name}"] for name in names})
     return GravityEpisode(arrays["id_obs"], recorded["id_episodes"], arrays["observations"], scores,
                           [(step, arrays[f"shot_{step}"]) for step in recorded["shot_steps"]],
-                          recorded["rendering_problem"])
+                          recorded["rendering_problem"], ranked)
 
 
 # ---- the command `make recollect` runs ---------------------------------------------------------------------------

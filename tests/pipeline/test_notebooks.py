@@ -73,6 +73,30 @@ def test_quickstart_from_its_recording_shows_what_playing_it_live_shows(tiny_che
         run_notebook(QUICKSTART, tmp_path / "other.ipynb", {**params, "episode_steps": 20, "recording": str(recording)})
 
 
+def test_quickstart_from_its_recording_ranks_the_recorded_scores(tiny_checkpoint, tmp_path, on_path):
+    """A rebuild computes no score (torch and BLAS round differently on other CPUs): it ranks the recorded ones. Every
+    recorded calibration score of value_std set below the episode's puts each of its steps at the 100th ID percentile."""
+    import json
+
+    import numpy as np
+
+    from paper_lib.common.recordings import save_recording
+    from paper_lib.experiments.recordings import play_gravity_change, quickstart_settings, save_gravity_episode
+
+    played = (tiny_checkpoint, 30, 15, [0.0, 0.0, -1.0], 40, 0, 0)
+    recording = save_gravity_episode(tmp_path / "quickstart.npz", quickstart_settings(*played), play_gravity_change(*played))
+    with np.load(recording) as data:
+        arrays = {name: data[name] for name in data.files if name != "settings"}
+        settings = json.loads(str(data["settings"]))
+    arrays["calibration__value_std"] = np.full_like(arrays["calibration__value_std"], -np.inf)
+    save_recording(recording, settings, **arrays)
+    out = run_notebook(QUICKSTART, tmp_path / "recorded.ipynb", {"checkpoint": str(tiny_checkpoint), "n_id_states": 40,
+                                                                  "episode_steps": 30, "frames": 0,
+                                                                  "recording": str(recording)})
+    text = "\n".join(o.get("data", {}).get("text/markdown", "") for o in _outputs(nbformat.read(out, as_version=4)))
+    assert "the best member measure, **value_std**, flags 100% (before: 100%)" in text, text
+
+
 def test_quickstart_names_a_wrong_checkpoint_folder(tmp_path, on_path):
     with pytest.raises(Exception, match="is not a checkpoint folder"):
         run_notebook(QUICKSTART, tmp_path / "out.ipynb", {"checkpoint": str(tmp_path / "nowhere"), "frames": 0})
