@@ -52,9 +52,8 @@ from paper_lib.ood.datasets import StateDataset
 from paper_lib.ood.transitions import EXACT_ENVS
 from paper_lib.pipeline.layout import stage_suffix
 from paper_lib.pipeline.run_results import (CHECKPOINT_INPUTS, PROVENANCE_FILE, _csv, _replicate_matrix,
-                                             check_dataset_identity, check_provenance, load_run_dataset,
-                                             provenance_record, read_replicate_matrix, read_score_csv,
-                                             replicates_by_metric, run_identity)
+                                             check_dataset_identity, load_run_dataset, provenance_record,
+                                             read_peer_scores, read_score_csv, run_identity)
 
 FILES = ("steps.npz", "metrics.csv", "pedm_fit.csv", PROVENANCE_FILE)
 #: The files of PEDM on Table 2's states, written where the env is one of `ood.transitions.EXACT_ENVS`.
@@ -245,24 +244,12 @@ def _inputs(cfg: RunConfig, env_id: str, method: str, seed: int) -> dict[str, Pa
 
 
 def read_table2_scores(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.DataFrame, dict]:
-    """PEDM on Table 2's states: (metrics, replicates keyed (env, method, seed, ood_set, measure)) of the runs among
-    `runs` whose `pedm` stage scored them, as `sequence_stage.read_sequence_scores` gives the sequence detectors'. A run
-    without the files is left out (the table says 'not scored'); files made from another dataset or checkpoint than
-    the run's current ones, cut off, or of another run are one error naming the stage to run again."""
-    frames, replicates = [], {}
-    for run in runs:
-        folder = pedm_dir(cfg, *run)
-        if run[0] not in EXACT_ENVS or not (folder / "table2_metrics.csv").is_file():
-            continue
-        identity, rerun = run_identity(*run), f"run it again (`dvc repro -s pedm@{stage_suffix(*run)}`)"
-        check_provenance(folder, identity, _inputs(cfg, *run), rerun, rerun, required=True)
-        metrics = read_score_csv(folder, "table2_metrics.csv", identity, rerun)
-        matrix = read_replicate_matrix(folder, len(metrics), rerun, name="table2_replicates.npy")
-        frames.append(metrics)
-        replicates |= {(*run, ood_set, measure): reps
-                       for (ood_set, measure), reps in replicates_by_metric(metrics, matrix).items()}
-    empty = pd.DataFrame(columns=["env", "method", "seed", "ood_set", "measure", "auroc"])
-    return (pd.concat(frames, ignore_index=True) if frames else empty), replicates
+    """PEDM on Table 2's states: (metrics, replicates) of the runs among `runs` whose `pedm` stage scored them
+    (`run_results.read_peer_scores`; its inputs are the run's checkpoint and dataset)."""
+    return read_peer_scores([run for run in runs if run[0] in EXACT_ENVS], lambda run: pedm_dir(cfg, *run),
+                            lambda run: _inputs(cfg, *run),
+                            lambda run: f"run it again (`dvc repro -s pedm@{stage_suffix(*run)}`)",
+                            metrics_name="table2_metrics.csv", replicates_name="table2_replicates.npy")
 
 
 def read_metrics(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> pd.DataFrame:

@@ -564,6 +564,33 @@ def replicates_by_metric(metrics: pd.DataFrame, matrix: np.ndarray) -> dict[tupl
     return {(o, m): row[~np.isnan(row)].astype(float) for o, m, row in zip(metrics["ood_set"], metrics["measure"], matrix)}
 
 
+RunKey = tuple[str, str, int]
+
+
+def read_peer_scores(runs: list[RunKey], folder_of: Callable[[RunKey], Path],
+                     inputs_of: Callable[[RunKey], dict[str, Path]], rerun_of: Callable[[RunKey], str],
+                     metrics_name: str = "metrics.csv", replicates_name: str = "replicates.npy",
+                     ) -> tuple[pd.DataFrame, dict[tuple[str, str, int, str, str], np.ndarray]]:
+    """(metrics, replicates keyed (env, method, seed, ood_set, measure)) of the runs among `runs` whose folder holds
+    `metrics_name`, as a stage that scores Table 2's states beside the `score` stage writes them (the sequence
+    detectors, PEDM). A run without the file is left out (a table says 'not scored'); files made from other inputs
+    than the run's current ones, cut off, or of another run are one error naming the stage to run again."""
+    frames, replicates = [], {}
+    for run in runs:
+        folder = folder_of(run)
+        if not (folder / metrics_name).is_file():
+            continue
+        identity, rerun = run_identity(*run), rerun_of(run)
+        check_provenance(folder, identity, inputs_of(run), rerun, rerun, required=True)
+        metrics = read_score_csv(folder, metrics_name, identity, rerun)
+        matrix = read_replicate_matrix(folder, len(metrics), rerun, name=replicates_name)
+        frames.append(metrics)
+        replicates |= {(*run, ood_set, measure): reps
+                       for (ood_set, measure), reps in replicates_by_metric(metrics, matrix).items()}
+    empty = pd.DataFrame(columns=["env", "method", "seed", "ood_set", "measure", "auroc"])
+    return (pd.concat(frames, ignore_index=True) if frames else empty), replicates
+
+
 def read_replicates(cfg: RunConfig, run: tuple[str, str, int]) -> dict[tuple[str, str], np.ndarray]:
     """One run's AUROC bootstrap replicates per (ood_set, measure), e.g. for `statistics.seed_cluster_ci` over seeds."""
     return replicates_by_metric(*read_run_metrics(cfg, run))

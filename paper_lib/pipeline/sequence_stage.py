@@ -30,8 +30,7 @@ from paper_lib.pipeline.config import RunConfig
 from paper_lib.pipeline.layout import SEQUENCE_STAGE, sequence_runs, stage_suffix
 from paper_lib.pipeline.run_cli import run_stage_main
 from paper_lib.pipeline.run_results import (PROVENANCE_FILE, _csv, _replicate_matrix, check_dataset_identity,
-                                             check_provenance, load_run_dataset, provenance_record,
-                                             read_replicate_matrix, read_score_csv, replicates_by_metric, run_identity)
+                                             load_run_dataset, provenance_record, read_peer_scores, run_identity)
 
 FILES = ("metrics.csv", "replicates.npy", PROVENANCE_FILE)
 
@@ -66,23 +65,10 @@ def run_sequence_scores(cfg: RunConfig, env_id: str, method: str, seed: int) -> 
 
 
 def read_sequence_scores(cfg: RunConfig, runs: list[tuple[str, str, int]]) -> tuple[pd.DataFrame, dict]:
-    """(metrics, replicates keyed (env, method, seed, ood_set, measure)) of the runs among `runs` whose stage has
-    run; a run without the files is left out (a table says 'not scored'). Files made from another dataset than the
-    run's current one, cut off, or of another run are one error naming the stage to run again."""
-    frames, replicates = [], {}
-    for run in sequence_runs(runs):
-        folder = cfg.layout.sequence_scores_dir(*run)
-        if not (folder / "metrics.csv").is_file():
-            continue
-        identity, rerun = run_identity(*run), _rerun(*run)
-        check_provenance(folder, identity, _inputs(cfg, *run), rerun, rerun, required=True)
-        metrics = read_score_csv(folder, "metrics.csv", identity, rerun)
-        matrix = read_replicate_matrix(folder, len(metrics), rerun)
-        frames.append(metrics)
-        replicates |= {(*run, ood_set, measure): reps
-                       for (ood_set, measure), reps in replicates_by_metric(metrics, matrix).items()}
-    empty = pd.DataFrame(columns=["env", "method", "seed", "ood_set", "measure", "auroc"])
-    return (pd.concat(frames, ignore_index=True) if frames else empty), replicates
+    """The sequence detectors' (metrics, replicates) of the runs among `runs` whose stage has run
+    (`run_results.read_peer_scores`)."""
+    return read_peer_scores(sequence_runs(runs), lambda run: cfg.layout.sequence_scores_dir(*run),
+                            lambda run: _inputs(cfg, *run), lambda run: _rerun(*run))
 
 
 def main(argv: list[str] | None = None) -> None:

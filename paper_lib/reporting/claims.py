@@ -402,10 +402,15 @@ def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
         rows.append(_row(claim, env_id, _untestable(metrics, env_id, design) or verdict,
                          f"of {len(cells)} measure cells (95% intervals): {above} above the detector, "
                          f"{len(cells) - above - below} tied, {below} below; best {best.method} {best.measure} "
-                         f"{best.difference:+.2f} [{best.ci_low:+.2f}, {best.ci_high:+.2f}], simultaneous over "
-                         f"{int(best.family_size)} [{best.family_ci_low:+.2f}, {best.family_ci_high:+.2f}] vs "
+                         f"{best.difference:+.2f} {_bounds(best.ci_low, best.ci_high)}, simultaneous over "
+                         f"{int(best.family_size)} {_bounds(best.family_ci_low, best.family_ci_high)} vs "
                          f"{best.detector}; {n_seeds} seed(s)", n_seeds, design))
     return rows
+
+
+def _bounds(low: float, high: float) -> str:
+    """An interval as the evidence prints it; a cell of one seed has none (Student's t needs two)."""
+    return "[no interval: 1 seed]" if np.isnan(low) or np.isnan(high) else f"[{low:+.2f}, {high:+.2f}]"
 
 
 def speed_rows(timings: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> list[dict[str, str]]:

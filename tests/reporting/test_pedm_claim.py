@@ -57,6 +57,7 @@ def test_fewer_seeds_than_planned_are_provisional_and_one_seed_never_decides():
     assert pedm_rows(runs, design)[0]["verdict"] == "holds, provisional (3 of 5 seeds)"
     one = _runs({("masksembles", "value_std"): [0.30]}, PEDM[:1])
     assert pedm_rows(one)[0]["verdict"] == "inconclusive (1 seed)"
+    assert "+0.30 [no interval: 1 seed], simultaneous over 1 [no interval: 1 seed]" in pedm_rows(one)[0]["evidence"]
 
 
 def test_no_scores_yet_is_a_row_per_mujoco_env_that_says_so_and_a_duplicate_run_is_refused():
