@@ -143,3 +143,15 @@ def test_the_runner_drops_tqdms_widget_warning_and_keeps_other_warnings(tmp_path
     nbformat.write(nb, source)
     text = "".join(o.get("text", "") for o in _outputs(nbformat.read(run_notebook(source, tmp_path / "out.ipynb"), 4)))
     assert "a warning that says something" in text and "IProgress" not in text
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "notebooks").glob("*.ipynb")), ids=lambda p: p.name)
+def test_every_notebook_is_valid_nbformat_with_its_own_cell_ids(path):
+    """nbformat 4.5 wants a unique id on every cell; a cell without one gets a random id (and a warning) each time a
+    tool reads it, and Jupyter's next save writes those random ids into the committed notebook."""
+    import json
+
+    raw = json.loads(path.read_text())
+    ids = [cell.get("id") for cell in raw["cells"]]
+    assert None not in ids and len(set(ids)) == len(ids), ids
+    nbformat.validate(nbformat.from_dict(raw))
