@@ -134,6 +134,11 @@ def save_resume_point(model: BaseAlgorithm, folder: Path, rows: list[dict[str, f
             pickle.dump(state, f)
 
 
+#: What makes two trainings the same run: a resume point or a finished checkpoint made with other values is another run.
+RECIPE_KEYS = ("algo", "method", "env_id", "seed", "n_members", "dropout_p", "masksembles_scale", "assignment",
+               "hidden_sizes", "policy", "normalize_obs", "normalize_reward", "algo_kwargs", "n_envs")
+
+
 def load_resume_point(model: BaseAlgorithm, folder: Path) -> dict[str, Any]:
     """Restore weights, optimizer, normalizer, counters and RNG states into a freshly built `model`.
 
@@ -145,8 +150,7 @@ def load_resume_point(model: BaseAlgorithm, folder: Path) -> dict[str, Any]:
             state = pickle.load(f)
         saved_config = state.get("config")
         if saved_config is not None:
-            for key in ("algo", "method", "env_id", "seed", "n_members", "dropout_p", "masksembles_scale", "assignment",
-                        "hidden_sizes", "policy", "normalize_obs", "normalize_reward", "algo_kwargs", "n_envs"):
+            for key in RECIPE_KEYS:
                 saved, now = (config_value(c, key) for c in (saved_config, model.paper_lib_config))
                 if saved != now:
                     raise ValueError(f"resume point {folder} was trained with {key}={saved!r}, "
@@ -292,6 +296,19 @@ def check_finished_budget(out_dir: Path, steps: int) -> None:
                          "--no-resume (resume=False) to train a new run of the smaller budget in its place")
 
 
+def already_finished(out_dir: Path, config: dict[str, Any], steps: int) -> bool:
+    """Whether `out_dir` holds this very run (`config`'s recipe) finished at `steps`: resuming it has nothing left to
+    do, and training it again would only replace a finished checkpoint (a landed one, say) with a retrained copy."""
+    try:
+        saved = json.loads((out_dir / "config.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return ((out_dir / "model.zip").is_file() and isinstance(saved, dict) and saved.get("total_timesteps") == steps
+            and (saved.get("trained_timesteps") or 0) >= steps
+            and all(config_value(saved, key) == json.loads(json.dumps(config_value(config, key), default=str))
+                    for key in RECIPE_KEYS))  # as config.json holds it: tuples read back as lists
+
+
 def check_resume_budget(model: BaseAlgorithm, resume_dir: Path, resumed_from: int, steps: int) -> None:
     """A resume point past the end of this budget would be exported as it is, labelled with the smaller budget."""
     rollout = getattr(model, "n_steps", 1) * model.n_envs
@@ -334,6 +351,10 @@ def _train_locked(env_id: str, method: str, seed: int, out_dir: Path, algo: str,
     rows, elapsed, resumed_from, segments = [], 0.0, 0, []
     if resume:
         check_finished_budget(out_dir, steps)
+    if resume and not (resume_dir / "state.pkl").is_file() and already_finished(out_dir, model.paper_lib_config, steps):
+        print(f"{out_dir} already holds this run, finished at {steps} steps: nothing to do (--no-resume trains it "
+              "again)", file=sys.stderr)
+        return out_dir
     if resume and (resume_dir / "state.pkl").is_file():
         state = load_resume_point(model, resume_dir)
         rows, elapsed, resumed_from = state["rows"], state["wall_seconds"], state["num_timesteps"]

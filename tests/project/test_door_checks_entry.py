@@ -169,6 +169,10 @@ def test_a_smaller_budget_into_a_bigger_run_is_refused(tmp_path):
     assert re.search(r"ckpt holds a finished run of 500 steps, asked 128; use a new folder, or --no-resume",
                      smaller.stderr)
     assert snapshot(tmp_path) == before
+    again = cli("paper_lib.agents.training", "CartPole-v1", "baseline", "0", str(out), "--timesteps", "500",
+                *TINY_HP, cwd=tmp_path)  # the same run, finished: a queue that reaches it again changes nothing
+    assert again.returncode == 0 and "already holds this run, finished at 500 steps: nothing to do" in again.stderr
+    assert snapshot(tmp_path) == before
 
 
 # ----------------------------------------------------------------------------- 3. an unknown notebook parameter
