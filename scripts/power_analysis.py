@@ -4,8 +4,8 @@
                                                 and its summary into docs/preregistration.md
     python scripts/power_analysis.py --check    recompute and compare with the committed file; exit 1 if it differs
 
-It reads only the seeds params.yaml's `preregistration.power_seeds` names (0-2, all committed before the
-registration), from the committed per-run files: the reward episodes (tables/reward_episodes.csv), each run's
+It reads only the seeds params.yaml's `preregistration.power_seeds` names per env family (those committed before
+the registration: MuJoCo 0-2, Atari 0), from the committed per-run files: the reward episodes (tables/reward_episodes.csv), each run's
 per-seed metrics.csv, the member runs' common-state scores (the AUROC order reads those), and the spawn
 experiment's summary. Seeds landing later do not change its output, so
 `--check` (tests/reporting/test_preregistration.py) confirms the file on any later commit. The claims table
@@ -28,7 +28,7 @@ from paper_lib.pipeline.config import load_run_config, read_params  # noqa: E402
 from paper_lib.pipeline.layout import common_runs  # noqa: E402
 from paper_lib.reporting.claims import AUROC_ORDER_PAIRS, SPREAD_MEASURES  # noqa: E402
 from paper_lib.reporting.paper_tables import _is_detector, best_detectors  # noqa: E402
-from paper_lib.reporting.preregistration import Preregistration, power_table  # noqa: E402
+from paper_lib.reporting.preregistration import Preregistration, family_of, power_table  # noqa: E402
 from paper_lib.reporting.tables import csv_text  # noqa: E402
 
 
@@ -45,11 +45,11 @@ def build(root: Path = ROOT) -> pd.DataFrame:
     cfg = load_run_config()
     prereg = Preregistration.from_params(read_params(root / "params.yaml"))
     metrics = per_seed_metrics(cfg)
-    metrics = metrics[metrics["seed"].isin(prereg.power_seeds)]
+    metrics = prereg.power_rows(metrics)
     episodes = pd.read_csv(cfg.layout.reward_episodes)
     spawn_path = cfg.layout.spawn_file("summary")
     spawn = pd.read_csv(spawn_path) if spawn_path.exists() else None
-    scored = [run for run in cfg.runs() if run[2] in prereg.power_seeds
+    scored = [run for run in cfg.runs() if run[2] in prereg.power_seeds[family_of(run[0])]
               and (cfg.layout.scores_dir(*run) / "metrics.csv").exists()]
     common, _ = read_common(cfg, common_runs(scored))  # the states the AUROC-order claim reads
     return power_table(episodes, metrics, spawn, prereg, AUROC_ORDER_PAIRS, SPREAD_MEASURES, _is_detector,

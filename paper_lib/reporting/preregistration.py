@@ -40,7 +40,8 @@ class Preregistration:
     js_threshold: float                  # "ranks like policy std": Spearman rho at least this
     min_ood_conditions: int              # fewer distinct OOD conditions in a run: the cell is not testable
     planned_seeds: dict[str, list[int]]  # per env family (MuJoCo, Atari): the seeds every verdict waits for
-    power_seeds: list[int]               # the seeds the power analysis read (committed before registration)
+    power_seeds: dict[str, list[int]]    # per env family: the seeds the power analysis read (those committed
+                                         # before registration)
     power_file: str                      # the power table, relative to the repository root
     auroc_order_states: str              # which states the AUROC-order claim compares the methods on
     speed: dict[str, Any]                # the speed claim (issue 70): its benchmark file, timings, margin, repetitions
@@ -55,15 +56,24 @@ class Preregistration:
         check_keys(entry, "params.yaml preregistration", KEYS, KEYS, fix="restore the entry from git")
         for name, keys in (("speed", SPEED_KEYS), ("pedm", PEDM_KEYS)):
             check_keys(entry[name], f"params.yaml preregistration.{name}", keys, keys, fix="restore the entry from git")
-        if set(entry["planned_seeds"]) != {"MuJoCo", "Atari"}:
-            raise ValueError(f"params.yaml preregistration.planned_seeds must name MuJoCo and Atari, got "
-                             f"{sorted(entry['planned_seeds'])}.")
+        for name in ("planned_seeds", "power_seeds"):
+            if not isinstance(entry[name], dict) or set(entry[name]) != {"MuJoCo", "Atari"}:
+                raise ValueError(f"params.yaml preregistration.{name} must name MuJoCo and Atari, got "
+                                 f"{entry[name]!r}; restore the entry from git.")
         return cls(**{key: entry[key] for key in KEYS})
 
     def planned(self, env_id: str) -> list[int]:
         from paper_lib.agents.envs import is_atari
 
         return list(self.planned_seeds["Atari" if is_atari(env_id) else "MuJoCo"])
+
+    def power_rows(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The rows of `frame` (env and seed columns) of seeds the power analysis read: each env family's own
+        (Atari had only seed 0 at registration, MuJoCo seeds 0-2), so no later seed can change the registered file."""
+        if frame.empty:
+            return frame
+        keep = [seed in self.power_seeds[family_of(env)] for env, seed in zip(frame["env"], frame["seed"])]
+        return frame[np.asarray(keep, dtype=bool)]
 
 
 def family_of(env_id: str) -> str:
@@ -251,10 +261,9 @@ def power_table(episodes: pd.DataFrame, metrics: pd.DataFrame, spawn: pd.DataFra
                 best: pd.Series, common: pd.DataFrame | None = None) -> pd.DataFrame:
     """Every (claim, env)'s seeds needed, from the `prereg.power_seeds` rows of the given per-seed frames; the AUROC
     order from `common` (the member methods on the baseline's states) where given, as the claim reads it."""
-    keep = prereg.power_seeds
-    episodes, metrics = episodes[episodes["seed"].isin(keep)], metrics[metrics["seed"].isin(keep)]
-    spawn = spawn[spawn["seed"].isin(keep)] if spawn is not None else pd.DataFrame(columns=["env"])
-    order = (auroc_order_power(common[common["seed"].isin(keep)], prereg, pairs, measures,
+    episodes, metrics = prereg.power_rows(episodes), prereg.power_rows(metrics)
+    spawn = prereg.power_rows(spawn) if spawn is not None else pd.DataFrame(columns=["env"])
+    order = (auroc_order_power(prereg.power_rows(common), prereg, pairs, measures,
                                "the common states (the baseline's, scored by every method)")
              if common is not None else auroc_order_power(metrics, prereg, pairs, measures))
     rows = (reward_power(episodes, prereg) + order
