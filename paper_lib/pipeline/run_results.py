@@ -42,7 +42,7 @@ from paper_lib.common.io import (DestinationError, atomic_dir, check_replaceable
                                  write_text_atomic)
 from paper_lib.common.provenance import file_digest
 from paper_lib.pipeline.config import RunConfig, load_run_config
-from paper_lib.pipeline.layout import Layout, combination_name, stage_suffix
+from paper_lib.pipeline.layout import Layout, Run, combination_name, stage_suffix
 
 if TYPE_CHECKING:
     from paper_lib.agents.checkpoints import Checkpoint
@@ -564,11 +564,8 @@ def replicates_by_metric(metrics: pd.DataFrame, matrix: np.ndarray) -> dict[tupl
     return {(o, m): row[~np.isnan(row)].astype(float) for o, m, row in zip(metrics["ood_set"], metrics["measure"], matrix)}
 
 
-RunKey = tuple[str, str, int]
-
-
-def read_peer_scores(runs: list[RunKey], folder_of: Callable[[RunKey], Path],
-                     inputs_of: Callable[[RunKey], dict[str, Path]], rerun_of: Callable[[RunKey], str],
+def read_peer_scores(runs: list[Run], folder_of: Callable[[Run], Path],
+                     inputs_of: Callable[[Run], dict[str, Path]], rerun_of: Callable[[Run], str],
                      metrics_name: str = "metrics.csv", replicates_name: str = "replicates.npy",
                      ) -> tuple[pd.DataFrame, dict[tuple[str, str, int, str, str], np.ndarray]]:
     """(metrics, replicates keyed (env, method, seed, ood_set, measure)) of the runs among `runs` whose folder holds

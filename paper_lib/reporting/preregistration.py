@@ -63,9 +63,7 @@ class Preregistration:
         return cls(**{key: entry[key] for key in KEYS})
 
     def planned(self, env_id: str) -> list[int]:
-        from paper_lib.agents.envs import is_atari
-
-        return list(self.planned_seeds["Atari" if is_atari(env_id) else "MuJoCo"])
+        return list(self.planned_seeds[family_of(env_id)])
 
     def power_rows(self, frame: pd.DataFrame) -> pd.DataFrame:
         """The rows of `frame` (env and seed columns) of seeds the power analysis read: each env family's own
