@@ -14,7 +14,9 @@ results/<profile>/pedm/<env>/<method>/seed<s>/:
                      compressed size of plain float16); `read_steps` gives them back as ``scores`` (scorers x
                      steps): any metric can be recomputed
     metrics.csv      per (scorer, kind, severity): AUROC, AP (aupr_out), FPR@95, the cluster-bootstrap AUROC
-                     interval (episodes), the detection delay; kind ``mean``: PEDM's per-severity means
+                     interval (episodes); kind ``mean``: PEDM's per-severity means (the detection delay and the
+                     time-matched AUROC are computed from steps.npz where they are read: `steps_frame`,
+                     `scoring.pedm_scores.step_metrics`)
     pedm_fit.csv     PEDM's training curve on this run (train loss, validation MSE per epoch)
     table2_metrics.csv, table2_replicates.npy
                      PEDM on Table 2's states (HalfCheetah, Swimmer, Ant: `ood.transitions.EXACT_ENVS`): the same
@@ -156,6 +158,20 @@ def read_steps(path: str | Path) -> dict[str, np.ndarray]:
                          "the stage again (`python -m paper_lib.pipeline.pedm_stage ENV METHOD SEED`)")
     arrays["scores"] = np.ascontiguousarray(np.moveaxis(planes, 0, -1)).view(SCORE_DTYPE)[..., 0]
     return arrays
+
+
+def steps_frame(path: str | Path) -> tuple[pd.DataFrame, list[tuple[str, str]]]:
+    """steps.npz as `pedm_scores.steps_table` gave it (columns condition, episode, step, label, one per scorer, as
+    float) and its conditions. A score above float16's range was stored as +inf; it is read as the largest float,
+    which keeps its rank (above every finite score) and lets the metrics take it."""
+    arrays = read_steps(path)
+    scores = arrays["scores"].astype(float)
+    scores[np.isposinf(scores)] = np.finfo(float).max
+    frame = pd.DataFrame({"condition": arrays["condition"].astype(int), "episode": arrays["episode"].astype(int),
+                          "step": arrays["step"].astype(int), "label": arrays["label"].astype(int),
+                          **dict(zip(arrays["scorers"].tolist(), scores))})
+    conditions = [tuple(c.split("/", 1)) for c in arrays["conditions"].tolist()]
+    return frame, conditions
 
 
 def _log(message: str, start: float) -> None:

@@ -1,8 +1,9 @@
 """Notebook 14's figures: each scorer per PEDM kind and severity, one panel per (env, severity), drawn with seaborn.
 
-The same grid serves the AUROC and the detection delay (`kind_figure`): x = PEDM's kinds, hue = scorer, a bar
-at the mean over the env's runs (every method and seed that has the scorer), a dot per run. `plots.save_figure`
-makes its text legible at the size the site shows it (`plots.legible`).
+The same grid serves the AUROC, the time-matched AUROC and the detection delay (`kind_figure`): x = PEDM's kinds,
+hue = scorer, a bar at the mean over the env's runs (every method and seed that has the scorer), a dot per run. The
+clock (the step index as a score) is drawn as a scorer: the AUROC that knowing only the time gets; it has no delay.
+`plots.save_figure` makes its text legible at the size the site shows it (`plots.legible`).
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from paper_lib.common.frames import require_columns
 from paper_lib.reporting.pedm_table import MEAN_KIND, SEVERITY_ORDER, scorer_order
 from paper_lib.reporting.plots import _grid_figure, _legend_beside_grid, seeded_jitter
 
-#: The two quantities a figure shows: column, axis label, a reference line (chance for AUROC) and y limits.
+#: The quantities a figure shows: column, axis label, a reference line (chance for AUROC) and y limits.
 QUANTITIES = {"auroc": ("AUROC (pooled per step)", 0.5, (0.0, 1.0)),
+              "auroc_time_matched": ("AUROC (time-matched)", 0.5, (0.0, 1.0)),
               "delay_median": ("median delay (steps)", None, None)}
 
 

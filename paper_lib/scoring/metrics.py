@@ -14,6 +14,7 @@ intervals, and the combination of several training seeds live in `statistics`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -286,11 +287,62 @@ def injection_metrics(scores: ArrayLike, labels: ArrayLike, episodes: ArrayLike,
     return {**row, "n_episodes": int(injected.size), "n_episodes_dropped": dropped}
 
 
-def delay_threshold(id_scores: ArrayLike, fpr: float = 0.05) -> float:
-    """The score above which a step is flagged: the (1 - fpr) quantile of ID steps' scores (held-out ID episodes)."""
-    if not 0.0 < fpr < 1.0:
-        raise ValueError(f"fpr must lie strictly between 0 and 1, got {fpr!r}.")
-    return float(np.quantile(_as_scores(id_scores, "id_scores"), 1.0 - fpr))
+def episode_threshold(id_scores: ArrayLike, id_episodes: ArrayLike, alpha: float | None = None
+                      ) -> tuple[float, float]:
+    """The score above which a step is flagged, calibrated on whole held-out ID episodes, and its false-alarm bound.
+
+    A per-step quantile flags nearly every episode once it has hundreds of steps; the unit that alarms is the
+    episode, so the threshold is split conformal on the episodes' maxima, the rule of the guard's episode alarms
+    (`guard.conformal`, a later layer): the k-th smallest of the n maxima, k = ceil((n + 1)(1 - alpha)); an ID
+    episode exchangeable with them has a step above it with probability at most (n + 1 - k) / (n + 1) <= alpha.
+    ``alpha`` None takes the least the n episodes allow, 1 / (n + 1): their largest maximum. Returns (threshold,
+    bound).
+    """
+    s = _as_scores(id_scores, "id_scores")
+    ep = np.asarray(id_episodes)
+    if ep.shape != s.shape:
+        raise ValueError(f"id_scores {s.shape} and id_episodes {ep.shape} need one entry per step each.")
+    labels, index = np.unique(ep, return_inverse=True)
+    n = labels.size
+    alpha = 1.0 / (n + 1) if alpha is None else float(alpha)
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must lie strictly between 0 and 1, got {alpha!r}.")
+    k = math.ceil((n + 1) * (1.0 - alpha) - 1e-9)  # (n + 1)(1 - alpha) is often a whole number up to rounding
+    if k > n:
+        raise ValueError(f"alpha={alpha:g} needs at least {math.ceil(1.0 / alpha - 1.0 - 1e-9)} held-out ID episodes "
+                         f"(n >= 1/alpha - 1), got {n}: the threshold would be infinite.")
+    maxima = np.full(n, -np.inf)
+    np.maximum.at(maxima, index, s)
+    return float(np.partition(maxima, k - 1)[k - 1]), (n + 1 - k) / (n + 1)
+
+
+def time_matched_auroc(scores: ArrayLike, labels: ArrayLike, steps: ArrayLike, id_scores: ArrayLike,
+                       id_steps: ArrayLike) -> float:
+    """AUROC of each perturbed step (label 1) against the held-out ID steps at the same step index (ties count 1/2).
+
+    PEDM's pooled AUROC sets late perturbed steps against early ID steps (labels turn 1 at the injection and stay
+    1), so a score that grows with time wins without seeing any perturbation; matched by step index, the step index
+    itself scores 0.5. The AUROC is over all matched (perturbed, ID) pairs; a perturbed step with no ID step at its
+    index is left out (NaN if none has one).
+    """
+    s, y = _as_scores(scores, "scores"), np.asarray(labels)
+    t, id_s, id_t = np.asarray(steps), _as_scores(id_scores, "id_scores"), np.asarray(id_steps)
+    if y.shape != s.shape or t.shape != s.shape or id_t.shape != id_s.shape:
+        raise ValueError(f"scores {s.shape}, labels {y.shape}, steps {t.shape} and id_scores {id_s.shape}, id_steps "
+                         f"{id_t.shape} need one entry per step each.")
+    ood_s, ood_t = s[y == 1], t[y == 1].astype(np.int64)
+    ranks = rankdata(np.concatenate([id_s, ood_s]), method="dense").astype(np.int64)  # 1..R: one integer key
+    width = int(ranks.max()) + 1
+    id_t = id_t.astype(np.int64)
+    keys = np.sort(id_t * width + ranks[:id_s.size])  # by step, then by score
+    ood_key, start = ood_t * width + ranks[id_s.size:], ood_t * width
+    before = np.searchsorted(keys, start, "left")
+    below = np.searchsorted(keys, ood_key, "left") - before
+    tied = np.searchsorted(keys, ood_key, "right") - before - below
+    pairs = np.searchsorted(keys, start + width, "left") - before
+    if pairs.sum() == 0:
+        return float("nan")
+    return float((below + 0.5 * tied).sum() / pairs.sum())
 
 
 def detection_delays(scores: ArrayLike, labels: ArrayLike, episodes: ArrayLike, threshold: float) -> pd.DataFrame:

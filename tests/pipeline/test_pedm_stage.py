@@ -178,3 +178,20 @@ def test_the_stage_exists_for_the_mujoco_runs_only():
     assert layout.stage_paths(PEDM_STAGE, runs[0]).outs == (Path("/repo/results/paper/pedm/HalfCheetah-v5/baseline/seed0"),)
     with pytest.raises(ValueError, match="per MuJoCo run"):
         layout.stage_paths(PEDM_STAGE, runs[1])
+
+
+def test_steps_frame_gives_back_the_stored_steps_with_inf_as_the_largest_float(tmp_path):
+    """steps.npz's float16 saturates above 65504 (+inf); read back, it is the largest float, above every other score,
+    and the conditions come back as (kind, severity) pairs."""
+    from paper_lib.pipeline.pedm_stage import _npz_bytes, steps_arrays, steps_frame
+
+    steps = pd.DataFrame({"condition": [-1, -1, 0, 0], "episode": [0, 0, 0, 0], "step": [0, 1, 0, 1],
+                          "label": [0, 0, 0, 1], "pedm": [0.5, 1.0, 2.0, 1e6]})
+    with pytest.warns(RuntimeWarning, match="overflow"):  # 1e6 has no float16: it is stored as +inf
+        arrays = steps_arrays(steps, [("act_noise", "severe")])
+    (tmp_path / "steps.npz").write_bytes(_npz_bytes(arrays))
+    frame, conditions = steps_frame(tmp_path / "steps.npz")
+    assert conditions == [("act_noise", "severe")]
+    assert list(frame.columns) == ["condition", "episode", "step", "label", "pedm"]
+    assert frame["pedm"].tolist() == [0.5, 1.0, 2.0, np.finfo(float).max]
+    assert frame[["condition", "step", "label"]].values.tolist() == [[-1, 0, 0], [-1, 1, 0], [0, 0, 0], [0, 1, 1]]

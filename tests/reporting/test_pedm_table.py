@@ -2,7 +2,8 @@
 
 Synthetic runs in a temporary results tree, read through the same reader as claim 7 (`pedm_stage.read_metrics`):
 a baseline and a Masksembles run of two seeds each, whose per-severity means are chosen so the Student-t
-interval over the seeds can be computed by hand.
+interval over the seeds can be computed by hand, each with a steps.npz (written by the stage's own writers) whose
+delays and clock are chosen by hand too.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pytest
 from paper_lib.pipeline.config import load_run_config
 from paper_lib.pipeline.layout import Layout
 from paper_lib.pipeline.pedm_runs import protocol_runs, protocol_settings
+from paper_lib.pipeline.pedm_stage import _npz_bytes, steps_arrays
 from paper_lib.reporting.pedm_figures import kind_figure
 from paper_lib.reporting.pedm_reading import protocol_differences, protocol_reading
 from paper_lib.reporting.pedm_table import (NO_RUNS, RUN_COLUMNS, protocol_table,
@@ -31,6 +33,9 @@ MEANS = {("baseline", 0): {"pedm": (0.50, 0.90)}, ("baseline", 1): {"pedm": (0.5
          ("masksembles", 0): {"value_std": (0.60, 0.80), "pedm": (0.52, 0.94)},
          ("masksembles", 1): {"value_std": (0.64, 0.86), "pedm": (0.56, 0.96)}}
 T_975_1 = 12.706204736174698  # Student's t, 0.975 quantile, 1 degree of freedom (two seeds)
+#: steps.npz: episodes of 16 steps, injected at steps 2 and 8; the step index then scores AUROC 202 / 220 pooled
+#: (ID steps 0, 1 and 0-7 against perturbed steps 2-15 and 8-15: 42 + 80 + 80 wins and half-ties of 10 x 22 pairs).
+LENGTH, INJECTIONS, CLOCK_AUROC = 16, (2, 8), 202 / 220
 
 
 def _metrics(method: str, seed: int) -> pd.DataFrame:
@@ -39,11 +44,32 @@ def _metrics(method: str, seed: int) -> pd.DataFrame:
         for severity, mean in zip(("minor", "severe"), severities):
             spread = np.linspace(-0.04, 0.04, len(KINDS))  # mean zero: the kinds average to `mean`
             rows += [{"scorer": scorer, "kind": kind, "severity": severity, "auroc": mean + d, "aupr_out": 0.5,
-                      "fpr_at_95_tpr": 0.9, "delay_median": i + (1.0 if scorer == "value_std" else 3.0), "detected": 1.0, "false_alarm": 0.0}
+                      "fpr_at_95_tpr": 0.9}
                      for i, (kind, d) in enumerate(zip(KINDS, spread))]
             rows.append({"scorer": scorer, "kind": "mean", "severity": severity, "auroc": mean, "aupr_out": 0.5,
                          "fpr_at_95_tpr": 0.9})
     return pd.DataFrame(rows).assign(env=ENV, method=method, seed=seed)
+
+
+def _delay(scorer: str, kind_index: int) -> int:
+    """The steps from the injection to the first flag, per kind: 3-7 for PEDM, 1-5 for value std."""
+    return kind_index + (1 if scorer == "value_std" else 3)
+
+
+def _steps(method: str, seed: int) -> bytes:
+    """steps.npz of a run: one held-out ID episode scored 0 throughout (so the threshold is 0), then per (kind,
+    severity) two episodes scored 0 until `_delay` steps after the injection and 1 from there on."""
+    scorers = list(MEANS[(method, seed)])
+    step = np.arange(LENGTH)
+    parts = [pd.DataFrame({"condition": -1, "episode": 0, "step": step, "label": 0, **{s: 0.0 for s in scorers}})]
+    conditions = [(kind, severity) for severity in ("minor", "severe") for kind in KINDS]
+    for index, (kind, _) in enumerate(conditions):
+        for episode, start in enumerate(INJECTIONS):
+            parts.append(pd.DataFrame({"condition": index, "episode": episode, "step": step,
+                                       "label": (step >= start).astype(int),
+                                       **{s: (step >= start + _delay(s, KINDS.index(kind))).astype(float)
+                                          for s in scorers}}))
+    return _npz_bytes(steps_arrays(pd.concat(parts, ignore_index=True), conditions))
 
 
 @pytest.fixture
@@ -58,30 +84,34 @@ def _write_runs(cfg) -> list[tuple[str, str, int]]:
         folder = cfg.layout.pedm_dir(*run)
         folder.mkdir(parents=True)
         _metrics(*run[1:]).to_csv(folder / "metrics.csv", index=False)
+        (folder / "steps.npz").write_bytes(_steps(*run[1:]))
         (folder / "provenance.json").write_text(json.dumps({"settings": {"epochs": 60, "test_episodes": 20}}))
     return runs
 
 
 def test_the_table_is_the_mean_over_seeds_with_a_hand_computed_t_interval(cfg, tmp_path):
     runs = protocol_runs(cfg, [*_write_runs(cfg), (ENV, "mc_dropout", 0)])  # a run that has not played: left out
-    assert list(runs.columns) == list(RUN_COLUMNS) and len(runs) == 6 * 2 * 6
+    assert list(runs.columns) == list(RUN_COLUMNS) and len(runs) == 6 * 2 * 6 + 4 * 2 * 6  # and each run's clock
     cells = severity_cells(runs).set_index(["method", "severity", "scorer"])
     pedm = cells.loc[("masksembles", "severe", "pedm")]  # seeds 0.94 and 0.96: mean 0.95, sd 0.01414, se 0.01
     assert pedm.auroc == pytest.approx(0.95) and pedm.n_seeds == 2
-    assert (pedm.ci_low, pedm.ci_high) == pytest.approx((0.95 - T_975_1 * 0.01, 0.95 + T_975_1 * 0.01))
+    # Student's t gives [0.823, 1.077]: cut to [0, 1], as no AUROC lies above 1
+    assert 0.95 + T_975_1 * 0.01 > 1 and (pedm.ci_low, pedm.ci_high) == pytest.approx((0.95 - T_975_1 * 0.01, 1.0))
 
     table = protocol_table(runs)
-    assert list(table.columns) == ["env", "method", "severity", "value_std", "pedm"]  # own measures, then detectors
+    # own measures, then detectors, then the clock (a reference)
+    assert list(table.columns) == ["env", "method", "severity", "value_std", "pedm", "clock"]
     assert table[["method", "severity"]].values.tolist() == [["baseline", "minor"], ["baseline", "severe"],
                                                              ["masksembles", "minor"], ["masksembles", "severe"]]
     row = table[(table.method == "masksembles") & (table.severity == "severe")].iloc[0]
-    assert row["pedm"] == "0.95 [0.82, 1.08] (n=2)" and row["value_std"] == "0.83 [0.45, 1.21] (n=2)"
+    assert row["pedm"] == "0.95 [0.82, 1.00] (n=2)" and row["value_std"] == "0.83 [0.45, 1.00] (n=2)"
+    assert row["clock"] == "0.92 [0.92, 0.92] (n=2)"
     assert table[table.method == "baseline"]["value_std"].tolist() == ["", ""]  # a baseline has no measure of its own
 
     layout = Layout(tmp_path / "out")
     layout.tables.mkdir(parents=True)
     save_protocol_tables(runs, layout.table("pedm_protocol"), layout.pedm_protocol_runs, "paper")
-    assert "0.95 [0.82, 1.08] (n=2)" in layout.table("pedm_protocol", "md").read_text()
+    assert "0.95 [0.82, 1.00] (n=2)" in layout.table("pedm_protocol", "md").read_text()
     assert "runs per env: HalfCheetah-v5 4" in layout.table("pedm_protocol", "md").read_text()
     back = pd.read_csv(layout.pedm_protocol_runs)  # the long form: any cell can be recomputed from it
     means = back[(back.kind == "mean") & (back.scorer == "pedm") & (back.method == "masksembles")]
@@ -92,6 +122,29 @@ def test_one_seed_shows_no_interval(cfg):
     _write_runs(cfg)
     table = protocol_table(protocol_runs(cfg, [(ENV, "baseline", 0)]))
     assert table["pedm"].tolist() == ["0.50 (n=1)", "0.90 (n=1)"]
+
+
+def test_delays_the_clock_and_time_matched_aurocs_come_from_the_stored_steps(cfg):
+    runs = protocol_runs(cfg, _write_runs(cfg))
+    runs = runs.set_index(["method", "seed", "scorer", "kind", "severity"]).sort_index()
+    for i, kind in enumerate(KINDS):
+        pedm = runs.loc[("masksembles", 1, "pedm", kind, "severe")]
+        # held-out scores all 0 (threshold 0, one episode: bound 1/2); flagged `_delay` steps after the injection
+        assert (pedm.delay_median, pedm.detected, pedm.false_alarm, pedm.false_alarm_bound) == (i + 3, 1, 0, 0.5)
+        assert pedm.auroc == pytest.approx(0.96 + np.linspace(-0.04, 0.04, 5)[i])  # metrics.csv's, untouched
+    clock = runs.loc[("baseline", 0, "clock")]
+    assert clock["auroc"].to_numpy() == pytest.approx(CLOCK_AUROC) and (clock["auroc_time_matched"] == 0.5).all()
+    assert clock["delay_median"].isna().all()
+    # PEDM's time-matched AUROC, act_noise (delay 6): per episode 14 resp. 8 perturbed steps, the first 6 tie with
+    # the held-out 0 at their step, the rest beat it: (2 * 6 * 0.5 + 8 + 2) / 22
+    assert runs.loc[("baseline", 0, "pedm", "act_noise", "minor"), "auroc_time_matched"] == pytest.approx(16 / 22)
+
+
+def test_a_missing_steps_file_is_one_error_naming_the_stage_to_run_again(cfg):
+    runs = _write_runs(cfg)
+    (cfg.layout.pedm_dir(ENV, "baseline", 1) / "steps.npz").unlink()
+    with pytest.raises(ValueError, match=r"steps.npz .*`dvc repro -s pedm@HalfCheetah-v5-baseline-1`"):
+        protocol_runs(cfg, runs)
 
 
 def test_a_cut_metrics_file_is_one_error_naming_the_stage_to_run_again(cfg):
@@ -135,6 +188,12 @@ def test_the_prose_is_computed_from_the_runs_and_their_settings(cfg):
     # delays 3..7 steps per kind for PEDM (median 5), 1..5 for value std (median 3)
     assert ("median delay of PEDM 5 steps (100% of episodes flagged), the shortest value_std's 3 steps (100% of "
             "episodes flagged)") in severe
+    # the clock (0.92 in every run) is a reference: never "the best"; only PEDM's severe mean lies above it
+    assert "the clock (step index alone) 0.92, above it: pedm" in severe
+    assert "the clock (step index alone) 0.92, no scorer above it" in minor and "best **value_std** 0.62" in minor
+    # a shorter delay resting on few flagged episodes is not named the shortest
+    few = runs.assign(detected=runs["detected"].where(runs["scorer"] != "value_std", 0.2))
+    assert "median delay 5 steps (100% of episodes flagged), the shortest, by pedm" in protocol_reading(few)[1]
 
 
 def test_the_figure_has_a_panel_per_env_and_severity(cfg):
