@@ -9,7 +9,7 @@
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropout 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropout/seed1
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropconnect 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropconnect/seed1
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 ensemble 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/ensemble/seed1
-.venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 baseline 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/baseline/seed2
+#done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 baseline 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/baseline/seed2
 .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 masksembles 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/masksembles/seed2
 .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropout 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropout/seed2
 .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropconnect 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropconnect/seed2

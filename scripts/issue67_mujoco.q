@@ -31,8 +31,8 @@
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 3 results/paper/checkpoints/Walker2d-v5/mc_dropout/seed3
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropconnect 3 results/paper/checkpoints/Walker2d-v5/mc_dropconnect/seed3
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 3 results/paper/checkpoints/Walker2d-v5/ensemble/seed3
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 4 results/paper/checkpoints/Walker2d-v5/baseline/seed4
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 4 results/paper/checkpoints/Walker2d-v5/masksembles/seed4
+#done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 4 results/paper/checkpoints/Walker2d-v5/baseline/seed4
+#done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 4 results/paper/checkpoints/Walker2d-v5/masksembles/seed4
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 4 results/paper/checkpoints/Walker2d-v5/mc_dropout/seed4
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropconnect 4 results/paper/checkpoints/Walker2d-v5/mc_dropconnect/seed4
 .venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 4 results/paper/checkpoints/Walker2d-v5/ensemble/seed4
