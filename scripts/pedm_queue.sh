@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Play PEDM's protocol (the `pedm` stage, issue 69) on every MuJoCo run that lacks its output, one run at a time at
-# low priority, from a worktree at HEAD (edits in progress here never reach a run), copying each run's folder back.
+# Play PEDM's protocol (the `pedm` stage, issue 69) on every MuJoCo run that lacks its output, or whose output was
+# played with other `pedm` settings than params.yaml's, one run at a time at low priority, from a worktree at HEAD
+# (edits in progress here never reach a run), copying each run's folder back.
 #   scripts/pedm_queue.sh [WORKTREE]            default /work/pedm_tree; `touch WORKTREE.stop` ends it after a run
 # Order: HalfCheetah, Swimmer, Ant, Walker2d; within an env seed by seed, so that claim 7 gains whole seeds first.
 # Then: python -m paper_lib.pipeline.run_list, scripts/dvc_record.py with the `pedm@ENV-METHOD-SEED` stages, and
@@ -15,19 +16,24 @@ if [ ! -e "$tree/.git" ]; then
   ln -s "$repo/.venv" "$tree/.venv"
 fi
 runs=$(cd "$repo" && .venv/bin/python - <<'PY'
-import yaml
+import json, os, yaml
 order = ["HalfCheetah-v5", "Swimmer-v5", "Ant-v5", "Walker2d-v5"]
 runs = yaml.safe_load(open("runs.yaml"))["sequence_runs"].values()
+wanted = yaml.safe_load(open("params.yaml"))["pedm"]  # a run played with other settings is played again
 methods = ["baseline", "masksembles", "mc_dropout", "mc_dropconnect", "ensemble"]
 for run in sorted(runs, key=lambda r: (order.index(r["env"]), r["seed"], methods.index(r["method"]))):
+    out = f"results/paper/pedm/{run['env']}/{run['method']}/seed{run['seed']}"
+    done_file = "metrics.csv" if run["env"] == "Walker2d-v5" else "table2_metrics.csv"
+    if os.path.isfile(f"{out}/{done_file}"):
+        settings = json.load(open(f"{out}/provenance.json")).get("settings", {})
+        if all(settings.get(key) == value for key, value in wanted.items()):
+            continue
     print(run["env"], run["method"], run["seed"])
 PY
 )
 while read -r env_id method seed; do
   [ -e "$tree.stop" ] && { echo "stop file $tree.stop: ending"; break; }
   out="results/paper/pedm/$env_id/$method/seed$seed"
-  case "$env_id" in Walker2d-v5) done_file=metrics.csv ;; *) done_file=table2_metrics.csv ;; esac
-  [ -f "$repo/$out/$done_file" ] && continue
   echo "[$(date +%T)] pedm $env_id $method $seed"
   if (cd "$tree" && nice -n 10 .venv/bin/python -m paper_lib.pipeline.pedm_stage "$env_id" "$method" "$seed"); then
     rm -rf "${repo:?}/$out" && mkdir -p "$(dirname "$repo/$out")" && cp -r "$tree/$out" "$repo/$out"
