@@ -26,9 +26,8 @@ results/<profile>/pedm/<env>/<method>/seed<s>/:
     provenance.json  the run, the SHA-256 of its checkpoint files (and of its dataset where Table 2's states are
                      scored), and the settings the stage ran with
 
-Cost (docs/deviations.md): 269k env steps (50 + 19 + 200 episodes of 1000) and one PEDM fit per run; HalfCheetah
-Masksembles seed 0 took 25 min (play 6, fit 13, score 6) sharing 2 cores with two trainings (load 3, 2026-12-06);
-about 0.4 MB (a baseline) to 1 MB (a member run) of files.
+Cost (docs/deviations.md): 255k env steps and one PEDM fit per run, about 4.5 CPU-min for HalfCheetah; about 0.4 MB
+(a baseline) to 0.9 MB (a member run) of files.
 """
 
 from __future__ import annotations
@@ -48,7 +47,7 @@ import torch as th
 
 from paper_lib.agents.training import stage_lock
 from paper_lib.common.io import atomic_dir, write_json_atomic
-from paper_lib.ood.pedm_collect import THRESHOLD_EPISODES, LoadedAgent
+from paper_lib.ood.pedm_collect import LoadedAgent
 from paper_lib.pipeline.config import RunConfig, read_params
 from paper_lib.pipeline.run_cli import run_stage_main
 from paper_lib.ood.datasets import StateDataset
@@ -77,7 +76,7 @@ class PEDMSettings:
 
     epochs: int
     id_episodes: int = 50
-    threshold_episodes: int = THRESHOLD_EPISODES
+    threshold_episodes: int = 5
     test_episodes: int = 20
     n_bootstrap: int = 1000
     max_steps: int | None = None  # tests only: shorter episodes
