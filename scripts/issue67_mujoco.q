@@ -25,7 +25,7 @@
 #done .venv/bin/python -m paper_lib.agents.training HalfCheetah-v5 mc_dropout 4 results/paper/checkpoints/HalfCheetah-v5/mc_dropout/seed4
 #done .venv/bin/python -m paper_lib.agents.training HalfCheetah-v5 mc_dropconnect 4 results/paper/checkpoints/HalfCheetah-v5/mc_dropconnect/seed4
 #done .venv/bin/python -m paper_lib.agents.training HalfCheetah-v5 ensemble 4 results/paper/checkpoints/HalfCheetah-v5/ensemble/seed4
-# Walker2d-v5, seeds 3-4: seed 3 landed (2026-12-05); seed 4 baseline, masksembles, mc_dropout, mc_dropconnect landed
+# Walker2d-v5, seeds 3-4: seeds 3-4 landed (seed 4 2026-12-06)
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 baseline 3 results/paper/checkpoints/Walker2d-v5/baseline/seed3
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 3 results/paper/checkpoints/Walker2d-v5/masksembles/seed3
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 3 results/paper/checkpoints/Walker2d-v5/mc_dropout/seed3
@@ -35,7 +35,7 @@
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 masksembles 4 results/paper/checkpoints/Walker2d-v5/masksembles/seed4
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 4 results/paper/checkpoints/Walker2d-v5/mc_dropout/seed4
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropconnect 4 results/paper/checkpoints/Walker2d-v5/mc_dropconnect/seed4
-.venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 4 results/paper/checkpoints/Walker2d-v5/ensemble/seed4
+#done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 4 results/paper/checkpoints/Walker2d-v5/ensemble/seed4
 # Ant-v5, seeds 3-4
 .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 3 results/paper/checkpoints/Ant-v5/baseline/seed3
 .venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 3 results/paper/checkpoints/Ant-v5/masksembles/seed3
