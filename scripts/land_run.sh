@@ -4,6 +4,8 @@
 # copy them back, and record the train, collect and evaluate stages in dvc.lock (`dvc commit`). A run not trained
 # with what params.yaml gives it today (paper_lib.pipeline.landing) is refused before anything is written.
 #   scripts/land_run.sh ENV METHOD SEED [ENV METHOD SEED ...]
+# Then it plays the experiments that take each run once, where it lands (`spawn`, `value_level`: `make reproduce` never
+# simulates, and its claims table reads spawn/summary.csv, so they come first).
 # Then `git add` the run's checkpoint, dataset, evaluation and dvc.lock, and `make reproduce` to score it.
 set -eu
 root=$(git rev-parse --show-toplevel)
@@ -48,3 +50,5 @@ done
 # record the stages in one index load (`dvc commit -f` reloads it for every stage: ~8 s each, 6 min for one env)
 printf '%s\n' "${stages[@]}" > "$wt.stages"
 "$py" "$root/scripts/dvc_record.py" "$wt.stages" && rm -f "$wt.stages"
+# the new runs' rows of the spawn and value_level experiments (kept rows: the committed runs are not played again)
+PATH="$root/.venv/bin:$PATH" "$root/.venv/bin/dvc" repro --single-item spawn value_level
