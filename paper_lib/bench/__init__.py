@@ -10,7 +10,9 @@ Measured in one run, per env and method (plain SB3 PPO is the method "baseline")
   the same vectorized env under random actions, the ceiling (method "env_only").
 - predict_b1, predict_bN: model.predict (deterministic) on 1 and on N states.
 - act_uncertainty_b1: predict plus every uncertainty measure for one state, divided by the
-  baseline's predict_b1; uncertainty_bN: every measure for N states, divided by its predict_bN.
+  baseline's predict_b1; uncertainty_bN: every measure for N states, divided by its predict_bN;
+  compiled_act_uncertainty_b1: act_uncertainty_b1 on the compiled policy (`paper_lib.deploy.compile_policy`,
+  Masksembles and Ensemble MLPs only).
 - peak_rss_{train,infer}_mb and rss_increase_*: peak memory of a fresh process (see memory.py).
 - every inference timing's limit: the multiply-adds it needs (arithmetic.py) as a plain dense
   computation timed in the same run (limits.py); bench.csv's limit and time_over_limit.

@@ -234,7 +234,7 @@ def measurement_count(policy, measurement: str, discrete: bool) -> Count | None:
     """
     if measurement.startswith("predict_b"):
         return network_count(policy, actor=True, critic=False)
-    if measurement.startswith(("act_uncertainty_b", "uncertainty_b")):
+    if measurement.startswith(("act_uncertainty_b", "uncertainty_b", "compiled_act_uncertainty_b")):
         plain = not isinstance(policy.mlp_extractor, (MemberMLP, MemberNatureCNN))
         return network_count(policy, actor=True, critic=not (plain and discrete))
     return None

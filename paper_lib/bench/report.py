@@ -28,8 +28,11 @@ TARGETS: dict[tuple[str, str], float] = {
     ("train_steps_per_s", "ensemble"): 1.3,
     **{("act_uncertainty_b1", m): 1.5 for m in ("masksembles", "mc_dropout", "mc_dropconnect", "ensemble")},
 }
+#: `act_uncertainty_b1` on the compiled policy (`paper_lib.deploy`): Masksembles and Ensemble MLPs.
+COMPILED_ACT = "compiled_act_uncertainty_b1"
 #: Measurements whose ratio is against a different baseline measurement.
-_REFERENCE_PREFIX = {"act_uncertainty_b": "predict_b", "uncertainty_b": "predict_b"}
+_REFERENCE_PREFIX = {"act_uncertainty_b": "predict_b", "uncertainty_b": "predict_b",
+                     "compiled_act_uncertainty_b": "predict_b"}
 
 
 @dataclass(frozen=True)

@@ -20,9 +20,10 @@ from paper_lib.bench.arithmetic import measurement_count
 from paper_lib.bench.config import BenchConfig
 from paper_lib.bench.limits import dense_limit
 from paper_lib.bench.models import build_model, has_measures, make_bench_env
-from paper_lib.bench.report import (ENV_ONLY, LIMIT_PREFIX, RATE_UNIT, Row, Sample, with_limits, with_ratios,
-                                    write_outputs)
+from paper_lib.bench.report import (COMPILED_ACT, ENV_ONLY, LIMIT_PREFIX, RATE_UNIT, Row, Sample, with_limits,
+                                    with_ratios, write_outputs)
 from paper_lib.bench.timing import env_ceiling, interleaved_samples, train_throughput
+from paper_lib.deploy import NotCompilable, compile_policy
 from paper_lib.measures.estimates import act_with_uncertainty, uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
@@ -53,6 +54,11 @@ def _inference_fns(models: dict[str, PPO], states: np.ndarray) -> tuple[dict, di
         if has_measures(model, method):
             if isinstance(model.policy, MemberActorCriticPolicy):  # one pass for the action and the measures
                 small[method, "act_uncertainty_b1"] = lambda m=model: act_with_uncertainty(m.policy, one)
+                try:  # the same call on the compiled policy (Masksembles and Ensemble MLPs)
+                    compiled = compile_policy(model.policy)
+                    small[method, COMPILED_ACT] = lambda c=compiled: c.act_with_uncertainty(one)
+                except NotCompilable:
+                    pass
             else:  # a discrete baseline's max_prob / entropy: predict, then score
                 small[method, "act_uncertainty_b1"] = lambda m=model: (m.predict(one, deterministic=True),
                                                                        uncertainty(m.policy, one, path="fast"))

@@ -31,6 +31,7 @@ def test_tiny_benchmark_writes_expected_rows(tmp_path):
                   "act_uncertainty_b1", "uncertainty_b32", "peak_rss_train_mb", "rss_increase_train_mb",
                   "peak_rss_infer_mb", "rss_increase_infer_mb"}
     expected = {("env_only", "env_steps_per_s")} | {(m, name) for m in TINY_RUN["methods"] for name in per_method}
+    expected.add(("masksembles", "compiled_act_uncertainty_b1"))  # a member MLP: the compiled one-state call too
     assert measured == expected
     assert len(table) == len(rows) == len(expected)
     for r in table:
@@ -46,7 +47,11 @@ def test_tiny_benchmark_writes_expected_rows(tmp_path):
     # the limit column: every inference timing against its arithmetic, nothing else
     limited = {(r["method"], r["measurement"]) for r in table if r["limit"] not in ("", "nan")}
     assert limited == {(m, name) for m in TINY_RUN["methods"]
-                       for name in ("predict_b1", "predict_b32", "act_uncertainty_b1", "uncertainty_b32")}
+                       for name in ("predict_b1", "predict_b32", "act_uncertainty_b1", "uncertainty_b32")} | {
+                           ("masksembles", "compiled_act_uncertainty_b1")}
+    compiled = next(r for r in table if r["measurement"] == "compiled_act_uncertainty_b1")
+    assert compiled["reference"] == "baseline/predict_b1" and compiled["macs_per_state"] == next(
+        r["macs_per_state"] for r in table if r["method"] == "masksembles" and r["measurement"] == "act_uncertainty_b1")
     for r in table:
         if (r["method"], r["measurement"]) in limited:
             assert float(r["macs_per_state"]) > 0 and float(r["time_over_limit"]) == pytest.approx(

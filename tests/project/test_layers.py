@@ -13,7 +13,7 @@ from pathlib import Path
 
 PAPER_LIB = Path(__file__).resolve().parents[2] / "paper_lib"
 LAYERS = ("common", "methods", "measures", "agents", "ood", "scoring", "reporting", "pipeline", "experiments",
-          "guard", "study", "bench")
+          "guard", "study", "bench", "deploy")
 #: Imports that cross the order today, each with why; the list may only shrink.
 KNOWN_CROSSINGS: dict[tuple[str, str], str] = {}
 
@@ -24,7 +24,7 @@ def layer_of(module: str) -> int | None:
     if len(parts) < 2 or parts[1] not in LAYERS:
         return None
     rank = LAYERS.index(parts[1])
-    return min(rank, LAYERS.index("guard")) if parts[1] in ("guard", "study", "bench") else rank
+    return min(rank, LAYERS.index("guard")) if parts[1] in ("guard", "study", "bench", "deploy") else rank
 
 
 def imports(path: Path) -> list[tuple[str, int, bool]]:
