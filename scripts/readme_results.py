@@ -9,7 +9,8 @@ paper_lib.pipeline.layout):
   count from results/<profile>/runs.md and a short reading computed from the same tables. Works on a partial
   matrix: cells of runs not trained yet are NaN in the tables and left out of the reading;
 - `<!-- bench:start -->` / `<!-- bench:end -->` in docs/benchmarks.md: the benchmark's cost ratios
-  (results/bench/bench.csv, `make bench`);
+  (results/bench/bench.csv, `make bench`), and `<!-- limits:start -->` / `<!-- limits:end -->` its times over
+  their arithmetic limits;
 - `<!-- probes:start -->` / `<!-- probes:end -->` in docs/deviations.md: the recipe probes
   (results/recipe_probes/summary_by_variant.csv).
 Every file is pasted in memory first (a missing marker stops the script before anything is written), then
@@ -62,6 +63,15 @@ BENCH_ROWS = (
     ("SeaquestNoFrameskip-v4", "rss_increase_infer_mb",
      "Seaquest, peak memory scoring 4096 states, above the process (issue target: 1.5x)"),
 )
+#: Rows of the time-over-limit table in docs/benchmarks.md (issue 70): (env, measurement, label).
+LIMIT_ROWS = (
+    ("HalfCheetah-v5", "act_uncertainty_b1", "HalfCheetah, one state, action + every measure (`act_with_uncertainty`)"),
+    ("HalfCheetah-v5", "compiled_act_uncertainty_b1", "HalfCheetah, one state, the same compiled (`compile_policy`)"),
+    ("HalfCheetah-v5", "uncertainty_b4096", "HalfCheetah, every measure on 4096 states"),
+    ("SeaquestNoFrameskip-v4", "act_uncertainty_b1", "Seaquest, one state, action + every measure"),
+    ("SeaquestNoFrameskip-v4", "uncertainty_b4096", "Seaquest, every measure on 4096 states"),
+)
+LIMITS_START, LIMITS_END = "<!-- limits:start -->", "<!-- limits:end -->"
 FREE_PREFIXES = ("mahalanobis", "knn")
 #: A Markdown table's cell border: a pipe that is not escaped.
 CELL_BORDER = re.compile(r"(?<!\\)\|")
@@ -215,6 +225,20 @@ def bench_table(csv: Path) -> str:
     return "\n".join(lines)
 
 
+def limit_table(csv: Path) -> str:
+    """Each method's time over its arithmetic limit (bench.csv's `time_over_limit`), one row per `LIMIT_ROWS` entry;
+    "-" where the method has no such timing (the compiled call covers Masksembles and Ensemble MLPs only)."""
+    bench = table_csv(csv)
+    methods = ("baseline", *BENCH_METHODS)
+    lines = ["| time / limit | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for env, measurement, label in LIMIT_ROWS:
+        rows = bench[(bench.env_id == env) & (bench.measurement == measurement)].set_index("method")
+        cells = [f"{rows.loc[m].time_over_limit:.2f}x" if m in rows.index and pd.notna(rows.loc[m].time_over_limit)
+                 else "-" for m in methods]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def probe_table(csv: Path) -> str:
     """Every recipe probe's training reward (mean over its seeds) and final evaluation, one row per probe."""
     probes = table_csv(csv)
@@ -352,7 +376,7 @@ def pastes(profile: str) -> dict[Path, list[tuple[str, str, str]]]:
             RESULTS_PAGE: [(START, END, results_part(layout))]}
     bench = Path("results/bench/bench.csv")
     if bench.exists():
-        todo[BENCH_PAGE] = [(BENCH_START, BENCH_END, bench_table(bench))]
+        todo[BENCH_PAGE] = [(BENCH_START, BENCH_END, bench_table(bench)), (LIMITS_START, LIMITS_END, limit_table(bench))]
     if PROBES_CSV.exists():
         todo[DEVIATIONS_PAGE] = [(PROBES_START, PROBES_END, probe_table(PROBES_CSV))]
     return todo

@@ -2,12 +2,12 @@
 
 `act_with_uncertainty` costs 0.135 ms on one HalfCheetah state against a 0.015 ms arithmetic limit for
 Masksembles (results/bench): torch's fixed cost per operation, not the products, is most of it. `compile_policy`
-copies the weights once, laid out for the members' one-state products, and runs them in two compiled calls
+copies the weights once, laid out for the members' one-state products, and runs them in one compiled call
 (`kernels`):
 - each Masksembles member keeps only its mask's units: member j's layer is W[kept_out_j][:, kept_in_j] (the
   masks keep the same number of units for every member, so the members stack);
 - an Ensemble's k weight matrices stack as they are stored;
-- the policy and value towers' first layers (same input) are one product.
+- the policy and value towers' first layers (same input) are one layer.
 
 Same numbers as `act_with_uncertainty` up to float rounding (tests/deploy); the weights are a snapshot: compile
 again after training further. MC Dropout and MC DropConnect draw their masks from torch's per-state streams, and
@@ -42,7 +42,7 @@ class NotCompilable(ValueError):
 
 @dataclass(frozen=True)
 class Layer:
-    """One linear layer of all members: x (N, d_in) @ weight[j] (d_in, d_out) + bias[j]; a leading size of 1 is
+    """One linear layer of all members: x (d_in,) @ weight[j] (d_in, d_out) + bias[j]; a leading size of 1 is
     shared by every member."""
 
     weight: np.ndarray  # (k or 1, d_in, d_out) float32
@@ -110,10 +110,15 @@ def _fuse_first(policy_first: Layer, value_first: Layer) -> Layer:
                  policy_first.activation)
 
 
-def _stacked(layers: list[Layer]) -> tuple:
-    """`kernels.forward`'s form of layers: (weights, biases, activation codes)."""
-    return (tuple(layer.weight for layer in layers), tuple(layer.bias for layer in layers),
-            np.array([layer.activation for layer in layers], np.int64))
+def _packed(layers: list[Layer]) -> tuple[np.ndarray, np.ndarray]:
+    """`kernels`' form of layers: every weight and bias in one float32 array, and the table that finds them."""
+    parts, rows, offset = [], [], 0
+    for layer in layers:
+        members, d_in, d_out = layer.weight.shape
+        rows.append((offset, offset + layer.weight.size, members, d_in, d_out, layer.activation))
+        parts += [layer.weight.transpose(0, 2, 1).ravel(), layer.bias.ravel()]  # output-major: a row per output
+        offset += layer.weight.size + layer.bias.size
+    return np.concatenate(parts).astype(np.float32), np.array(rows, np.int64)
 
 
 def _softmax(logits: np.ndarray) -> np.ndarray:
@@ -138,9 +143,11 @@ class CompiledMemberPolicy:
         self.mode = policy.inference[0]
         policy_layers = _tower_layers(extractor.policy_tower, self.k)
         value_layers = _tower_layers(extractor.value_tower, self.k)
-        self.first = _stacked([_fuse_first(policy_layers[0], value_layers[0])])
-        self.split = policy_layers[0].weight.shape[-1]
-        self.policy_rest, self.value_rest = _stacked(policy_layers[1:]), _stacked(value_layers[1:])
+        if min(len(policy_layers), len(value_layers)) < 2:
+            raise NotCompilable(f"towers without a hidden layer (net_arch []) are not covered; {_INSTEAD}")
+        self.packed, self.table = _packed([_fuse_first(policy_layers[0], value_layers[0]), *policy_layers[1:],
+                                           *value_layers[1:]])
+        self.n_policy_layers, self.split = len(policy_layers) - 1, policy_layers[0].weight.shape[-1]
         space = policy.action_space
         if not self.discrete:
             self.low, self.high = space.low.astype(np.float32), space.high.astype(np.float32)
@@ -149,12 +156,12 @@ class CompiledMemberPolicy:
     def act_with_uncertainty(self, observation: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """(actions, {measure: (N,)}) for one observation or a batch, as `measures.act_with_uncertainty`."""
         obs, vectorized = check_observations(self.policy, observation, single_ok=True, what="observation")
-        params, values = kernels.forward(np.ascontiguousarray(obs, dtype=np.float32), self.first, self.policy_rest,
-                                         self.value_rest, self.split, self.k)
+        program = (np.ascontiguousarray(obs, dtype=np.float32), self.packed, self.table, self.n_policy_layers,
+                   self.split, self.k)
         if self.discrete:
-            actions, scores = self._discrete(params, values)
+            actions, scores = self._discrete(*kernels.forward(*program))
         else:
-            actions, value_std, policy_std, policy_js = kernels.continuous_measures(params, values, self.low, self.high)
+            actions, value_std, policy_std, policy_js = kernels.act_continuous(*program, self.low, self.high)
             actions = actions.reshape((-1, *self.action_shape))
             scores = {"value_std": value_std, "policy_std": policy_std, "policy_js": policy_js}
         return (actions if vectorized else actions[0]), scores

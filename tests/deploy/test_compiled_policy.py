@@ -14,7 +14,7 @@ import torch as th
 from gymnasium import spaces
 
 from paper_lib.agents.factory import make_agent
-from paper_lib.deploy import NotCompilable, compile_policy
+from paper_lib.deploy import NotCompilable, compile_policy, kernels
 from paper_lib.measures.estimates import act_with_uncertainty
 from paper_lib.methods.policy import MemberActorCriticPolicy
 
@@ -111,3 +111,17 @@ def test_a_wrong_observation_is_one_clear_error() -> None:
     compiled = compile_policy(build_policy("continuous", "masksembles"))
     with pytest.raises(ValueError, match="observation have shape"):
         compiled.act_with_uncertainty(np.zeros(5, np.float32))
+
+
+def test_the_compiled_tanh_is_within_a_few_float32_ulps_of_the_exact_one() -> None:
+    """The kernels' rational tanh (Eigen's float tanh) against float64 tanh: small x, the polynomial's range, the
+    clamp and beyond."""
+    x = np.concatenate([np.linspace(-12, 12, 200_001), [0.0, 1e-5, -3e-4, 7.9, 8.0, 50.0, -50.0]]).astype(np.float32)
+    compiled = np.array([kernels.tanh(value) for value in x[::97]] + [kernels.tanh(value) for value in x[-7:]],
+                        np.float32)
+    points = np.concatenate([x[::97], x[-7:]])
+    exact = np.tanh(points.astype(np.float64))
+    ulps = np.abs(compiled - exact) / np.spacing(np.abs(exact).astype(np.float32))
+    assert ulps.max() <= 8, (points[ulps.argmax()], ulps.max())
+    np.testing.assert_array_equal(compiled[points == 0], 0.0)
+    assert compiled.max() <= 1.0 and compiled.min() >= -1.0

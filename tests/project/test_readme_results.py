@@ -22,7 +22,8 @@ from paper_lib.pipeline.layout import Layout  # noqa: E402
 PASTED = {
     readme_results.README: [(readme_results.HEADLINE_START, readme_results.HEADLINE_END)],
     readme_results.RESULTS_PAGE: [(readme_results.START, readme_results.END)],
-    readme_results.BENCH_PAGE: [(readme_results.BENCH_START, readme_results.BENCH_END)],
+    readme_results.BENCH_PAGE: [(readme_results.BENCH_START, readme_results.BENCH_END),
+                                (readme_results.LIMITS_START, readme_results.LIMITS_END)],
     readme_results.DEVIATIONS_PAGE: [(readme_results.PROBES_START, readme_results.PROBES_END)],
 }
 
@@ -70,6 +71,15 @@ def test_bench_table_marks_met_targets_and_names_differing_ones(tmp_path: Path):
     assert line == "| HalfCheetah training | **1.10x** | 1.30x | 2.00x | **1.20x** | 1.15x (ensemble 1.3x) |"
 
 
+def test_limit_table_shows_each_methods_time_over_limit_and_a_dash_where_it_has_none(tmp_path: Path):
+    rows = [("HalfCheetah-v5", m, "compiled_act_uncertainty_b1", r) for m, r in [("masksembles", 1.234),
+                                                                               ("ensemble", 0.75)]]
+    csv = tmp_path / "bench.csv"
+    pd.DataFrame(rows, columns=["env_id", "method", "measurement", "time_over_limit"]).to_csv(csv, index=False)
+    line = next(l for l in readme_results.limit_table(csv).splitlines() if "HalfCheetah, one state, the same" in l)
+    assert line.endswith("| - | 1.23x | - | - | 0.75x |")
+
+
 def test_committed_readme_and_docs_match_what_the_script_pastes(tmp_path: Path, profile: str):
     # the README's headline table and the docs pages' tables must be the committed pipeline outputs, pasted, not typed
     copy_inputs(profile, tmp_path)
@@ -95,6 +105,8 @@ def test_every_paste_holds_the_committed_tables(profile: str):
         assert line in results
     assert block(text[readme_results.BENCH_PAGE], readme_results.BENCH_START, readme_results.BENCH_END) == \
         readme_results.bench_table(REPO / "results/bench/bench.csv")
+    assert block(text[readme_results.BENCH_PAGE], readme_results.LIMITS_START, readme_results.LIMITS_END) == \
+        readme_results.limit_table(REPO / "results/bench/bench.csv")
     assert block(text[readme_results.DEVIATIONS_PAGE], readme_results.PROBES_START, readme_results.PROBES_END) == \
         readme_results.probe_table(REPO / readme_results.PROBES_CSV)
     # and the README carries only its headline: the other pastes live in docs/
