@@ -100,6 +100,14 @@ def test_links_to_repository_files_are_made_to_work_on_the_site():
         "```\n[kept](../paper_lib/pipeline/config.py)\n```\n")
 
 
+def test_every_committed_table_has_its_own_one_line_reading():
+    """The home page lists every table by its caption's first phrase: two tables that share it look like one."""
+    readings: dict[str, list[str]] = {}
+    for text, path in project_site.table_files("paper", project_site.ROOT).items():
+        readings.setdefault(project_site.first_sentence(text.splitlines()[0]), []).append(path.name)
+    assert {reading: names for reading, names in readings.items() if len(names) > 1} == {}
+
+
 def test_the_site_builds_offline_within_budget(built):
     profile = project_site.active_profile()
     executed = sorted(p.name for p in (ROOT / "results" / profile / "notebooks").glob("*.ipynb"))
