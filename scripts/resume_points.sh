@@ -3,11 +3,13 @@
 # back on the next machine. A resume point (`.<run>.resume/` beside the run's checkpoint path, paper_lib.agents.training)
 # holds the model with its optimizer, the normalizer, the curve so far and the RNG states: well under 1 MB for
 # the MuJoCo MLPs.
-#   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs not landed yet (still
-#                                                          in progress, or finished but REPO lacks that model.zip)
-#                                                          into REPO/results/resume_points/, and drop the copies
-#                                                          of runs that have landed (the tree's checkpoint was
-#                                                          trained to the resume point's step, REPO holds it)
+#   scripts/resume_points.sh save TRAINING_TREE [REPO]     copy the resume points of runs still in progress, and
+#                                                          the checkpoints of runs finished but not landed (REPO
+#                                                          lacks that model.zip; a checkpoint has no optimizer
+#                                                          state: an Atari Ensemble's is 14 MB, its resume point
+#                                                          79 MB), into REPO/results/resume_points/, and drop the
+#                                                          copies of runs that have landed (the tree's checkpoint
+#                                                          was trained to the resume point's step, REPO holds it)
 #   scripts/resume_points.sh save --keep-landed TRAINING_TREE [REPO]
 #                                                          also keep finished runs' last resume points (a probe
 #                                                          to be extended to a larger budget later)
@@ -47,6 +49,10 @@ landed() {  # landed() RUN_FOLDER STATE REL: the checkpoint came from this resum
     [ "$(trained_of "$1/config.json")" = "$(step_of "$2")" ]  # not the older run a retraining will replace
 }
 
+finished_here() {  # finished_here RUN_FOLDER STATE: the tree's checkpoint is this resume point's run, finished
+  [ -f "$1/model.zip" ] && [ -n "$(trained_of "$1/config.json")" ] && [ "$(trained_of "$1/config.json")" = "$(step_of "$2")" ]
+}
+
 step_of() {  # the training step a resume point was saved at (its state.pkl); nothing when it cannot be read
   "$python" -c 'import pickle, sys
 try:
@@ -64,8 +70,16 @@ if [ "$mode" = save ]; then
     if [ $keep_landed = 0 ] && landed "$run" "$state" "$rel"; then
       rm -rf "${store:?}/$rel"                      # landed: its resume point is no longer needed
       continue
-    fi                                              # finished but not landed: its last resume point lands it
+    fi
     n=$((n + 1))
+    if [ $keep_landed = 0 ] && finished_here "$run" "$state"; then  # finished, not landed: its checkpoint lands it
+      if [ -f "$store/$rel/model.zip" ] && [ ! -f "$store/$rel/state.pkl" ] && cmp -s "$run/model.zip" "$store/$rel/model.zip"; then
+        echo "kept $rel (finished, as saved before)"; continue
+      fi
+      mkdir -p "$store/$rel.tmp" && cp -r "$run/." "$store/$rel.tmp/"
+      rm -rf "${store:?}/$rel" && mv "$store/$rel.tmp" "$store/$rel"
+      echo "saved $rel (finished checkpoint, $(du -sh "$store/$rel" | cut -f1))"; continue
+    fi                                              # in progress: its last resume point continues it
     if [ -f "$store/$rel/state.pkl" ]; then
       step=$(step_of "$state")
       if [ -n "$step" ] && [ "$step" = "$(step_of "$store/$rel/state.pkl")" ]; then
@@ -76,6 +90,12 @@ if [ "$mode" = save ]; then
     rm -rf "${store:?}/$rel" && mv "$store/$rel.tmp" "$store/$rel"   # a kill leaves the previous copy
     echo "saved $rel ($(du -sh "$store/$rel" | cut -f1))"
   done < <(find "$tree/results" -path "$store" -prune -o -name state.pkl -path '*/.*.resume/*' -print0)
+  while IFS= read -r -d '' config; do  # finished checkpoints saved before: dropped once REPO holds the same model
+    saved=$(dirname "$config"); rel=${saved#"$store/"}
+    if [ ! -f "$saved/state.pkl" ] && cmp -s "$saved/model.zip" "$repo/results/$rel/model.zip"; then
+      rm -rf "${saved:?}"; echo "dropped $rel (landed)"
+    fi
+  done < <(find "$store" -name config.json -print0 2> /dev/null)
   echo "$n resume point(s) in $store"
   # Optuna studies training in the tree: its studies.db carries their trials (scripts/studies_resume_point.py)
   while IFS= read -r -d '' db; do
@@ -93,6 +113,14 @@ else
     mkdir -p "$target" && cp -r "$saved/." "$target/"
     echo "restored $rel -> $target"
   done < <(find "$store" -name state.pkl -print0)
+  while IFS= read -r -d '' config; do  # finished runs not landed yet: their checkpoint, where training finds it done
+    saved=$(dirname "$config"); rel=${saved#"$store/"}
+    [ -f "$saved/state.pkl" ] && continue
+    target="$tree/results/$rel"
+    if [ -f "$target/model.zip" ]; then echo "note $rel: $target already holds a checkpoint, left as it is"; continue; fi
+    mkdir -p "$target" && cp -r "$saved/." "$target/"
+    echo "restored $rel (finished: land it) -> $target"
+  done < <(find "$store" -name config.json -print0)
   while IFS= read -r -d '' db; do  # studies in progress: their database replaces the tree's committed one
     rel=${db#"$store/"}
     mkdir -p "$(dirname "$tree/results/$rel")" && cp "$db" "$tree/results/$rel"

@@ -166,3 +166,30 @@ def test_studies_in_progress_travel_with_the_repository(tmp_path):
                       to_storage=f"sqlite:///{repo / db}")
     landed = _run("save", str(tree), str(repo))
     assert landed.returncode == 0 and not stored.exists(), landed.stdout + landed.stderr
+
+
+def test_a_finished_run_travels_as_its_checkpoint_and_is_dropped_once_landed(tmp_path):
+    """A run that finished but has not landed travels as its checkpoint (no optimizer state: an Atari Ensemble's is
+    14 MB, its resume point 79 MB), comes back where training finds it done, and goes once the repository holds it."""
+    tree, repo, new_machine = tmp_path / "frozen", tmp_path / "repo", tmp_path / "next"
+    (repo / "results").mkdir(parents=True)
+    (new_machine / "results").mkdir(parents=True)
+    _state(_resume_point(tree, 2, b"with optimizer"), 1_000_448, 10_000.0)
+    _checkpoint(tree, 2, b"finished weights")
+    (tree / "results" / RUN / "seed2" / "config.json").write_text('{"trained_timesteps": 1000448}')
+
+    saved = _run("save", str(tree), str(repo))
+    store = repo / "results" / "resume_points" / RUN / "seed2"
+    assert saved.returncode == 0 and "finished checkpoint" in saved.stdout, saved.stdout + saved.stderr
+    assert sorted(p.name for p in store.iterdir()) == ["config.json", "model.zip"]
+    again = _run("save", str(tree), str(repo))
+    assert "kept" in again.stdout and (store / "model.zip").read_bytes() == b"finished weights"
+
+    restored = _run("restore", str(repo), str(new_machine))
+    assert restored.returncode == 0, restored.stderr
+    assert (new_machine / "results" / RUN / "seed2" / "model.zip").read_bytes() == b"finished weights"
+    assert not (new_machine / "results" / RUN / ".seed2.resume").exists()
+
+    _checkpoint(repo, 2, b"finished weights")  # landed from the new machine, whose tree has no resume point of it
+    dropped = _run("save", str(new_machine), str(repo))
+    assert dropped.returncode == 0 and "dropped" in dropped.stdout and not store.exists(), dropped.stdout
