@@ -38,6 +38,11 @@ def kind_figure(runs: pd.DataFrame, value: str = "auroc") -> Figure:
     kinds, scorers = list(pd.unique(data["kind"])), scorer_order(data["scorer"])
     for ax, (env, severity) in zip(axes, [(e, s) for e in envs for s in severities]):
         panel = data[(data["env"] == env) & (data["severity"] == severity)]
+        if panel.empty:  # e.g. a delay where no run flagged any minor perturbation
+            ax.set(title=f"{env}, {severity}", xlabel="", ylabel=label)
+            ax.text(0.5, 0.5, f"no run has a\n{label}", ha="center", va="center", transform=ax.transAxes)
+            ax.set_xticks([])
+            continue
         sns.barplot(data=panel, x="kind", y=value, hue="scorer", order=kinds, hue_order=scorers, errorbar=None,
                     alpha=0.5, ax=ax)
         with seeded_jitter():

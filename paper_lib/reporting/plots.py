@@ -68,9 +68,12 @@ def _grid_figure(n_panels: int, max_columns: int) -> tuple[Figure, list]:
 
 
 def _legend_beside_grid(fig: Figure, axes: list, title: str | None = None) -> None:
-    """One figure legend right of a panel grid (taken from the last panel), not inside a cell."""
-    handles, labels = axes[-1].get_legend_handles_labels()
-    for ax in axes:
+    """One figure legend right of a panel grid (taken from the last panel that has one), not inside a cell."""
+    legends = [ax for ax in axes if ax.get_legend() is not None]  # a panel with nothing to draw has none
+    if not legends:
+        return
+    handles, labels = legends[-1].get_legend_handles_labels()
+    for ax in legends:
         ax.get_legend().remove()
     fig.legend(handles, labels, title=title, loc="outside right upper", frameon=False)
 

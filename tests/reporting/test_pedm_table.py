@@ -202,3 +202,16 @@ def test_the_figure_has_a_panel_per_env_and_severity(cfg):
     assert [ax.get_title() for ax in fig.axes] == [f"{ENV}, minor", f"{ENV}, severe"]
     with pytest.raises(ValueError, match="kind_figure draws one of"):
         kind_figure(runs, "aupr")
+
+
+def test_a_panel_without_values_says_so_and_the_grid_keeps_its_legend(cfg):
+    """Swimmer's minor perturbations had no detection delay in any run: its panel is empty, not a crash."""
+    runs = protocol_runs(cfg, _write_runs(cfg))
+    swimmer = runs.assign(env="Swimmer-v5", delay_median=runs["delay_median"].where(runs["severity"] == "severe"))
+    fig = kind_figure(pd.concat([runs, swimmer], ignore_index=True), "delay_median")
+    assert [ax.get_title() for ax in fig.axes] == [f"{ENV}, minor", f"{ENV}, severe", "Swimmer-v5, minor",
+                                                   "Swimmer-v5, severe"]
+    empty = fig.axes[2]
+    assert [t.get_text() for t in empty.texts] == ["no run has a\nmedian delay (steps)"] and not empty.patches
+    assert all(ax.patches for ax in fig.axes[:2] + fig.axes[3:])  # bars everywhere else
+    assert len(fig.legends) == 1 and all(ax.get_legend() is None for ax in fig.axes)
