@@ -3,7 +3,7 @@
 # points between machines: scripts/resume_points.sh save TREE / restore REPO TREE. A run lands (its evaluation and
 # scores) only after the pre-registration commit (docs/preregistration.md) is in main: issue 66.
 # Atari seeds 1 and 2 (the paper's 3 seeds), game by game so that each game's column completes in turn
-# SeaquestNoFrameskip-v4, seeds 1-2: seed 1 landed (2026-12-05); seed 2 baseline, masksembles, mc_dropout, mc_dropconnect landed (ensemble trained, lands next)
+# SeaquestNoFrameskip-v4, seeds 1-2: seed 1 landed (2026-12-05), seed 2 landed (2026-12-07)
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 baseline 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/baseline/seed1
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 masksembles 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/masksembles/seed1
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropout 1 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropout/seed1
@@ -13,7 +13,7 @@
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 masksembles 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/masksembles/seed2
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropout 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropout/seed2
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropconnect 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropconnect/seed2
-.venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 ensemble 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/ensemble/seed2
+#done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 ensemble 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/ensemble/seed2
 # MsPacmanNoFrameskip-v4, seeds 1-2
 .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 baseline 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/baseline/seed1
 .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 masksembles 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/masksembles/seed1

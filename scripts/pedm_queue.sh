@@ -3,6 +3,8 @@
 # played with other `pedm` settings than params.yaml's, one run at a time at low priority, from a worktree at HEAD
 # (edits in progress here never reach a run), copying each run's folder back.
 #   scripts/pedm_queue.sh [WORKTREE]            default /work/pedm_tree; `touch WORKTREE.stop` ends it after a run
+# `touch WORKTREE.hold` while a rebuild reads results/ (notebook 6 reads every pedm folder it finds): the queue goes on
+# playing, and copies the runs it finished meanwhile once the file is gone (`rm WORKTREE.hold`).
 # Order: HalfCheetah, Swimmer, Ant, Walker2d; within an env seed by seed, so that claim 7 gains whole seeds first.
 # Then: python -m paper_lib.pipeline.run_list, scripts/dvc_record.py with the `pedm@ENV-METHOD-SEED` stages, and
 # `dvc repro --single-item --force ood pedm_protocol paper_vs_us` (see docs/pipeline.md).
@@ -31,14 +33,28 @@ for run in sorted(runs, key=lambda r: (order.index(r["env"]), r["seed"], methods
     print(run["env"], run["method"], run["seed"])
 PY
 )
+pending=()  # finished runs not copied yet: WORKTREE.hold was there when they finished
+copy_pending() {
+  [ -e "$tree.hold" ] && return 0
+  for out in "${pending[@]}"; do
+    rm -rf "${repo:?}/$out" && mkdir -p "$(dirname "$repo/$out")" && cp -r "$tree/$out" "$repo/$out"
+    echo "[$(date +%T)] copied $out"
+  done
+  pending=()
+}
 while read -r env_id method seed; do
   [ -e "$tree.stop" ] && { echo "stop file $tree.stop: ending"; break; }
   out="results/paper/pedm/$env_id/$method/seed$seed"
   echo "[$(date +%T)] pedm $env_id $method $seed"
   if (cd "$tree" && nice -n 10 .venv/bin/python -m paper_lib.pipeline.pedm_stage "$env_id" "$method" "$seed"); then
-    rm -rf "${repo:?}/$out" && mkdir -p "$(dirname "$repo/$out")" && cp -r "$tree/$out" "$repo/$out"
+    pending+=("$out")
     echo "[$(date +%T)] done $env_id $method $seed"
   else
     echo "[$(date +%T)] FAILED $env_id $method $seed"
   fi
+  copy_pending
 done <<< "$runs"
+while [ ${#pending[@]} -gt 0 ]; do  # the last runs wait for the hold to end
+  [ -e "$tree.hold" ] && { sleep 5; continue; }
+  copy_pending
+done

@@ -42,6 +42,7 @@ def kind_figure(runs: pd.DataFrame, value: str = "auroc") -> Figure:
             ax.set(title=f"{env}, {severity}", xlabel="", ylabel=label)
             ax.text(0.5, 0.5, f"no run has a\n{label}", ha="center", va="center", transform=ax.transAxes)
             ax.set_xticks([])
+            ax.set_yticks([])  # no scale to read: a bare 0-1 axis would suggest values of 0
             continue
         sns.barplot(data=panel, x="kind", y=value, hue="scorer", order=kinds, hue_order=scorers, errorbar=None,
                     alpha=0.5, ax=ax)

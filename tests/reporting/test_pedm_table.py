@@ -213,5 +213,6 @@ def test_a_panel_without_values_says_so_and_the_grid_keeps_its_legend(cfg):
                                                    "Swimmer-v5, severe"]
     empty = fig.axes[2]
     assert [t.get_text() for t in empty.texts] == ["no run has a\nmedian delay (steps)"] and not empty.patches
+    assert not empty.get_yticks().size and not empty.get_xticks().size  # no axis scale to misread as values
     assert all(ax.patches for ax in fig.axes[:2] + fig.axes[3:])  # bars everywhere else
     assert len(fig.legends) == 1 and all(ax.get_legend() is None for ax in fig.axes)
