@@ -102,3 +102,20 @@ def test_a_recollection_reports_each_rewritten_file_against_the_one_it_replaced(
     printed = capsys.readouterr().out
     assert outside == 1 and "1 of 2 evaluation and score files within" in printed
     assert "moved.csv: numbers differ (largest difference 0.2 in auroc" in printed and "noise.csv" not in printed
+
+
+def test_only_the_per_run_stages_dvc_status_finds_stale_are_named_to_dvc_repro():
+    """Naming a stage to `dvc repro` costs a dvc.yaml load (~7 s): the up-to-date ones are left out, in stage order."""
+    from paper_lib.pipeline.reproduce import per_run_targets
+
+    runs = [("Swimmer-v5", "baseline", 0), ("Swimmer-v5", "masksembles", 0), ("SeaquestNoFrameskip-v4", "baseline", 0)]
+    everything = per_run_targets(runs, None)
+    assert everything == [["score@Swimmer-v5-baseline-0", "score@Swimmer-v5-masksembles-0",
+                           "score@SeaquestNoFrameskip-v4-baseline-0"],
+                          ["common_score@Swimmer-v5-masksembles-0"],
+                          ["sequence_score@Swimmer-v5-baseline-0", "sequence_score@Swimmer-v5-masksembles-0"]]
+    stale = {"score@Swimmer-v5-masksembles-0", "sequence_score@Swimmer-v5-masksembles-0", "ood", "guard",
+             "collect@Swimmer-v5-baseline-0"}  # tables and simulating stages are not this step's
+    assert per_run_targets(runs, stale) == [["score@Swimmer-v5-masksembles-0"],
+                                            ["sequence_score@Swimmer-v5-masksembles-0"]]
+    assert per_run_targets(runs, set()) == []
