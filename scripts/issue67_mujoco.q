@@ -36,9 +36,9 @@
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropout 4 results/paper/checkpoints/Walker2d-v5/mc_dropout/seed4
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 mc_dropconnect 4 results/paper/checkpoints/Walker2d-v5/mc_dropconnect/seed4
 #done .venv/bin/python -m paper_lib.agents.training Walker2d-v5 ensemble 4 results/paper/checkpoints/Walker2d-v5/ensemble/seed4
-# Ant-v5, seeds 3-4: baseline seed 3 landed (2026-12-07)
+# Ant-v5, seeds 3-4: baseline and masksembles seed 3 landed (2026-12-07)
 #done .venv/bin/python -m paper_lib.agents.training Ant-v5 baseline 3 results/paper/checkpoints/Ant-v5/baseline/seed3
-.venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 3 results/paper/checkpoints/Ant-v5/masksembles/seed3
+#done .venv/bin/python -m paper_lib.agents.training Ant-v5 masksembles 3 results/paper/checkpoints/Ant-v5/masksembles/seed3
 .venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropout 3 results/paper/checkpoints/Ant-v5/mc_dropout/seed3
 .venv/bin/python -m paper_lib.agents.training Ant-v5 mc_dropconnect 3 results/paper/checkpoints/Ant-v5/mc_dropconnect/seed3
 .venv/bin/python -m paper_lib.agents.training Ant-v5 ensemble 3 results/paper/checkpoints/Ant-v5/ensemble/seed3
