@@ -6,8 +6,8 @@
 # `touch WORKTREE.hold` while a rebuild reads results/ (notebook 6 reads every pedm folder it finds): the queue goes on
 # playing, and copies the runs it finished meanwhile once the file is gone (`rm WORKTREE.hold`).
 # Order: HalfCheetah, Swimmer, Ant, Walker2d; within an env seed by seed, so that claim 7 gains whole seeds first.
-# Then: python -m paper_lib.pipeline.run_list, scripts/dvc_record.py with the `pedm@ENV-METHOD-SEED` stages, and
-# `dvc repro --single-item --force ood pedm_protocol paper_vs_us` (see docs/pipeline.md).
+# Then scripts/record_pedm.sh (run_list, scripts/dvc_record.py with the new `pedm@ENV-METHOD-SEED` stages,
+# `dvc repro --single-item --force ood pedm_protocol paper_vs_us`, the README's results, `git add`: docs/pipeline.md).
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
 tree=${1:-/work/pedm_tree}
