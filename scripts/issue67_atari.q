@@ -14,9 +14,9 @@
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropout 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropout/seed2
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 mc_dropconnect 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/mc_dropconnect/seed2
 #done .venv/bin/python -m paper_lib.agents.training SeaquestNoFrameskip-v4 ensemble 2 results/paper/checkpoints/SeaquestNoFrameskip-v4/ensemble/seed2
-# MsPacmanNoFrameskip-v4, seeds 1-2: baseline seed 1 landed (2026-12-07)
+# MsPacmanNoFrameskip-v4, seeds 1-2: baseline seed 1 landed (2026-12-07), masksembles seed 1 landed (2026-12-08)
 #done .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 baseline 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/baseline/seed1
-.venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 masksembles 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/masksembles/seed1
+#done .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 masksembles 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/masksembles/seed1
 .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 mc_dropout 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/mc_dropout/seed1
 .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 mc_dropconnect 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/mc_dropconnect/seed1
 .venv/bin/python -m paper_lib.agents.training MsPacmanNoFrameskip-v4 ensemble 1 results/paper/checkpoints/MsPacmanNoFrameskip-v4/ensemble/seed1

@@ -5,8 +5,9 @@ and the budget measurement (`paper_lib.experiments.pedm_budget`) play the same e
 
 - **ID training episodes:** ``n_id`` unperturbed episodes (PEDM's ``oodd_runner.py`` ``n_train_episodes`` default:
   50), episode seeds from ``1000 * seed + 3``;
-- **threshold episodes:** ``THRESHOLD_EPISODES`` more unperturbed episodes, seeds from ``1000 * seed + 5``, held
-  out of every fit: the ID scores a detection delay's threshold is read from;
+- **threshold episodes:** params.yaml's ``pedm.threshold_episodes`` more unperturbed episodes (19: false alarms
+  at most 1/20), seeds from ``1000 * seed + 5``, held out of every fit: the ID scores a detection delay's
+  threshold is read from;
 - **test episodes:** ``n_test`` episodes per (kind, severity) (PEDM: 100; ours 20, docs/deviations.md), episode
   seeds from ``1000 * seed + 4``, the same for every kind and severity (paired kinds: one injection step per episode);
 - **actions:** deterministic, as PEDM's TD3 plays; the agent reads the run's frozen VecNormalize view of each
@@ -28,8 +29,6 @@ from paper_lib.ood.pedm_protocol import KINDS, SEVERITIES, Agent, play_pedm_epis
 PEDM_ID_EPISODES = 50
 #: Test episodes per (kind, severity): PEDM plays 100 (``--test_episodes``); ours 20 (the issue's budget).
 TEST_EPISODES = 20
-#: ID episodes held out of every fit, whose scores set each scorer's detection-delay threshold (PEDM's 10% of 50).
-THRESHOLD_EPISODES = 5
 ID_SEED_OFFSET, TEST_SEED_OFFSET, THRESHOLD_SEED_OFFSET = 3, 4, 5
 #: Every (kind, severity) of the protocol, in the order a collection holds them.
 CONDITIONS = tuple((kind, severity) for severity in SEVERITIES for kind in KINDS)

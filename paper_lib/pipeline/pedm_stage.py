@@ -26,8 +26,8 @@ results/<profile>/pedm/<env>/<method>/seed<s>/:
     provenance.json  the run, the SHA-256 of its checkpoint files (and of its dataset where Table 2's states are
                      scored), and the settings the stage ran with
 
-Cost (docs/deviations.md): 255k env steps and one PEDM fit per run, about 4.5 CPU-min for HalfCheetah; about 0.4 MB
-(a baseline) to 0.9 MB (a member run) of files.
+Cost (docs/deviations.md): 269k env steps and one PEDM fit (60 epochs) per run, about 12 CPU-min for a Swimmer run
+(22 min of wall beside two trainings on 2 cores); about 0.4 MB (a baseline) to 0.9 MB (a member run) of files.
 """
 
 from __future__ import annotations

@@ -151,8 +151,9 @@ def per_run_targets(runs: list, stale: set[str] | None) -> list[list[str]]:
     baseline's states, issue 66), then `sequence_score` (the sequence detectors on the MuJoCo datasets, issue 69).
 
     Given `stale` (one `dvc status`), only the stages it names: `dvc repro` loads dvc.yaml once per stage named on its
-    command line (about 7 s each here, 45 min for the ~300 stages of the main matrix), while `dvc status` checks them
-    all in one load (2-3 min). With `stale` None (a rescore, or `dvc status` failed) every stage, as DVC would pick.
+    command line (about 7.5 s each here, about 39 min for the ~309 stages of the main matrix), while `dvc status`
+    checks them all in one load (2-3 min). With `stale` None (a rescore, or `dvc status` failed) every stage, as DVC
+    would pick.
     """
     groups = [[f"score@{stage_suffix(*run)}" for run in runs],
               [f"common_score@{stage_suffix(*run)}" for run in common_runs(runs)],

@@ -398,19 +398,34 @@ def detector_claim(versus: pd.DataFrame, design: ClaimDesign = ClaimDesign(),
             verdict = FAILS
         else:
             verdict = inconclusive(n_seeds)
-        best = cells.loc[cells.difference.idxmax()]
+        label, shown = _shown_cell(cells, tested, verdict)
+        digits = 3 if verdict == HOLDS else 2  # a deciding bound of +0.005 must not print as +0.00
         rows.append(_row(claim, env_id, _untestable(metrics, env_id, design) or verdict,
                          f"of {len(cells)} measure cells (95% intervals): {above} above the detector, "
-                         f"{len(cells) - above - below} tied, {below} below; best {best.method} {best.measure} "
-                         f"{best.difference:+.2f} {_bounds(best.ci_low, best.ci_high)}, simultaneous over "
-                         f"{int(best.family_size)} {_bounds(best.family_ci_low, best.family_ci_high)} vs "
-                         f"{best.detector}; {n_seeds} seed(s)", n_seeds, design))
+                         f"{len(cells) - above - below} tied, {below} below; {label} {shown.method} {shown.measure} "
+                         f"({_seeds(int(shown.n_seeds))}) {shown.difference:+.{digits}f} "
+                         f"{_bounds(shown.ci_low, shown.ci_high, digits)}, simultaneous over {int(shown.family_size)} "
+                         f"{_bounds(shown.family_ci_low, shown.family_ci_high, digits)} vs {shown.detector}; "
+                         f"{n_seeds} seed(s)", n_seeds, design))
     return rows
 
 
-def _bounds(low: float, high: float) -> str:
+def _shown_cell(cells: pd.DataFrame, tested: pd.DataFrame, verdict: str) -> tuple[str, pd.Series]:
+    """The cell the evidence names: when the claim holds, the one that decides it (its simultaneous interval
+    lies highest above 0), so a reader never sees "holds" beside an interval that contains 0; otherwise the
+    cell with the largest difference."""
+    if verdict == HOLDS:
+        return "deciding cell", tested.loc[tested.family_ci_low.idxmax()]
+    return "best", cells.loc[cells.difference.idxmax()]
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed" if n == 1 else f"{n} seeds"
+
+
+def _bounds(low: float, high: float, digits: int = 2) -> str:
     """An interval as the evidence prints it; a cell of one seed has none (Student's t needs two)."""
-    return "[no interval: 1 seed]" if np.isnan(low) or np.isnan(high) else f"[{low:+.2f}, {high:+.2f}]"
+    return "[no interval: 1 seed]" if np.isnan(low) or np.isnan(high) else f"[{low:+.{digits}f}, {high:+.{digits}f}]"
 
 
 def speed_rows(timings: pd.DataFrame | None, design: ClaimDesign = ClaimDesign()) -> list[dict[str, str]]:

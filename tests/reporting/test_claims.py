@@ -127,6 +127,18 @@ def test_one_of_many_cells_clearing_zero_alone_is_not_enough_to_hold():
         paper_claims(*args, stale, None)
 
 
+def test_a_claim_that_holds_names_the_cell_that_decides_it():
+    """Ant after its 4th masksembles seed: a wide cell had the largest difference, a tight one decided "holds"."""
+    versus = _versus([(0.03, 0.05), (-0.2, 0.4)], family=[(0.005, 0.079), (-0.47, 0.68)])
+    row = detector_claim(versus)[0]
+    assert row["verdict"] == HOLDS
+    assert "deciding cell masksembles m0 (3 seeds) +0.040 [+0.030, +0.050], simultaneous over 2 [+0.005, +0.079]" \
+        in row["evidence"]
+    undecided = detector_claim(_versus([(0.03, 0.05), (-0.2, 0.4)], family=[(-0.01, 0.09), (-0.47, 0.68)]))[0]
+    assert "best masksembles m1 (3 seeds) +0.10" in undecided["evidence"]  # no cell decides: the largest difference
+    assert "best masksembles m0 (1 seed) +0.04" in detector_claim(_versus([(0.03, 0.05)], n_seeds=1))[0]["evidence"]
+
+
 # ---------------------------------------------------------------- issue 66: the second pass, on constructed cases
 
 PLAN = ClaimDesign(planned_seeds={"MuJoCo": 5, "Atari": 3},
