@@ -13,6 +13,12 @@ holds an advisory lock (flock) on its marker while it writes, which the kernel
 drops when the process dies: the next write of the same file deletes the
 temporary folders whose marker nobody holds (a killed writer's), never a live
 writer's, so a killed rebuild leaves nothing behind once it is run again.
+
+A kill can land at any instruction, so no folder is ever unmarked while it holds
+anything: a new folder is empty until marked, a folder is emptied before its
+marker goes (`_delete_temp`), and a folder swap moves an unmarked payload out of
+and into a marked wrapper (`atomic_dir`). A killed writer therefore leaves a
+marked folder or an empty one (`_holds_nothing`), and both are swept.
 """
 
 from __future__ import annotations
@@ -53,6 +59,48 @@ def _mark(folder: Path) -> None:
     (folder / TEMP_MARKER).write_text(_MARKER_TEXT)
 
 
+def _holds_nothing(entry: Path) -> bool:
+    """Whether `entry` is a real folder holding nothing but, at most, a marker (whole or partly written).
+
+    What a writer killed before its marker was written, or after `_delete_temp` removed it, leaves: deleting
+    it loses nothing, marked or not.
+    """
+    if entry.is_symlink() or not entry.is_dir():
+        return False
+    try:
+        names = os.listdir(entry)
+        if not names:
+            return True
+        marker = entry / TEMP_MARKER
+        if names != [TEMP_MARKER] or marker.is_symlink() or not marker.is_file():
+            return False
+        return _MARKER_TEXT.startswith(marker.read_text())
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _delete_temp(folder: Path) -> None:
+    """Delete a temporary folder, its marker last: a kill part-way leaves it marked, or empty (`_holds_nothing`).
+
+    `shutil.rmtree` deletes in directory order, and a kill after it removed the marker left an unmarked folder
+    that nothing would ever delete (a CI run's `..ckpt.resume.*.tmp`).
+    """
+    if folder.is_symlink() or not folder.is_dir():
+        return
+    for entry in os.listdir(folder):
+        if entry != TEMP_MARKER:
+            path = folder / entry
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+    (folder / TEMP_MARKER).unlink(missing_ok=True)
+    try:
+        os.rmdir(folder)
+    except OSError:
+        pass
+
+
 def is_ours(entry: str | os.PathLike[str]) -> bool:
     """Whether `entry` is a temporary folder this module made (a real folder holding the marker with its text)."""
     entry = Path(entry)
@@ -77,30 +125,24 @@ def _held_temp_dir(parent: Path, name: str) -> tuple[Path, int]:
 
     The marker is locked before its text is written, so a sweeper that finds the text finds the lock held.
     """
-    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{name}.", suffix=".tmp"))
-    fd = os.open(tmp / TEMP_MARKER, os.O_WRONLY | os.O_CREAT, 0o644)
-    fcntl.flock(fd, fcntl.LOCK_EX)
-    os.write(fd, _MARKER_TEXT.encode())
-    return tmp, fd
+    while True:
+        tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{name}.", suffix=".tmp"))
+        try:
+            fd = os.open(tmp / TEMP_MARKER, os.O_WRONLY | os.O_CREAT, 0o644)
+        except FileNotFoundError:  # a sweeper removed the still empty folder: take another
+            continue
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os.write(fd, _MARKER_TEXT.encode())
+        try:
+            if os.stat(tmp / TEMP_MARKER).st_ino == os.fstat(fd).st_ino:
+                return tmp, fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)  # a sweeper deleted the folder before this process held its marker: take another
 
 
 def _release(fd: int) -> None:
     os.close(fd)  # closing drops the flock
-
-
-def _writer_is_gone(folder: Path) -> bool:
-    """Whether no live process holds `folder`'s marker locked (its writer finished or was killed)."""
-    try:
-        fd = os.open(folder / TEMP_MARKER, os.O_RDONLY)
-    except OSError:
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        return True
-    except BlockingIOError:
-        return False
-    finally:
-        os.close(fd)
 
 
 def remove_dead_temps(path: str | os.PathLike[str]) -> list[Path]:
@@ -112,11 +154,42 @@ def remove_dead_temps(path: str | os.PathLike[str]) -> list[Path]:
     if not target.parent.is_dir():
         return []
     pattern = _temp_pattern(target.name)
-    dead = sorted(entry for entry in target.parent.iterdir()
-                  if pattern.fullmatch(entry.name) and is_ours(entry) and _writer_is_gone(entry))
-    for entry in dead:
-        shutil.rmtree(entry, ignore_errors=True)
+    dead = []
+    for entry in sorted(target.parent.iterdir()):
+        if not pattern.fullmatch(entry.name):
+            continue
+        if not (entry / TEMP_MARKER).exists() and _holds_nothing(entry):
+            try:
+                os.rmdir(entry)  # fails if a live writer has just put its marker in: it stays
+                dead.append(entry)
+            except OSError:
+                pass
+        elif is_ours(entry) or _holds_nothing(entry):
+            if _delete_if_writer_gone(entry):
+                dead.append(entry)
     return dead
+
+
+def _delete_if_writer_gone(folder: Path) -> bool:
+    """Delete `folder` while holding its marker's lock, if no live process holds it; True if deleted.
+
+    A writer that takes the lock after this (its marker created, not locked yet) finds its marker gone and starts
+    over (`_held_temp_dir`).
+    """
+    try:
+        fd = os.open(folder / TEMP_MARKER, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return False
+    try:
+        _delete_temp(folder)
+    finally:
+        os.close(fd)
+    return True
 
 
 def _temp_pattern(name: str) -> re.Pattern[str]:
@@ -209,7 +282,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, target)
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        _delete_temp(stage)
         _release(held)
 
 
@@ -299,7 +372,7 @@ def atomic_files(folder: str | os.PathLike[str]) -> Iterator[Path]:
         journal.unlink()  # every new file is in: nothing left to put back
     finally:
         if not journal.exists():  # a journal left means the old files are still needed: recover_files uses them
-            shutil.rmtree(stage, ignore_errors=True)
+            _delete_temp(stage)
 
 
 def _keep_old(target: Path, stage: Path, names: list[str]) -> list[str]:
@@ -344,11 +417,12 @@ def recover_files(folder: str | os.PathLike[str]) -> list[Path]:
     if not target.is_dir():
         return []
     pattern = _temp_pattern(_FILES_STAGE)
-    stages = sorted(entry for entry in target.iterdir() if pattern.fullmatch(entry.name) and is_ours(entry))
+    stages = sorted(entry for entry in target.iterdir()
+                    if pattern.fullmatch(entry.name) and (is_ours(entry) or _holds_nothing(entry)))
     for stage in stages:
         if (stage / _JOURNAL).is_file():
             _put_back(target, stage)
-        shutil.rmtree(stage, ignore_errors=True)
+        _delete_temp(stage)
     return stages
 
 
@@ -387,13 +461,14 @@ def recover_dir(path: str | os.PathLike[str]) -> None:
 
 
 def _remove_ours(parent: Path, name: str) -> list[Path]:
-    """Delete the marked temporary folders of `name` in `parent`; anything unmarked stays."""
+    """Delete the marked (or empty) temporary folders of `name` in `parent`; anything unmarked stays."""
     if not parent.is_dir():
         return []
     pattern = _temp_pattern(name)
-    stale = sorted(entry for entry in parent.iterdir() if pattern.fullmatch(entry.name) and is_ours(entry))
+    stale = sorted(entry for entry in parent.iterdir()
+                   if pattern.fullmatch(entry.name) and (is_ours(entry) or _holds_nothing(entry)))
     for entry in stale:
-        shutil.rmtree(entry, ignore_errors=True)
+        _delete_temp(entry)
     return stale
 
 
@@ -418,27 +493,27 @@ def atomic_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
     the exchange is unsupported, the old folder is renamed to `.<name>.old` first and
     `recover_dir` puts it back if a kill lands between the two renames. A file or a link at
     ``path`` is refused (DestinationError) before anything is written: the swap would lose it.
+
+    The yielded folder is `payload` inside a marked wrapper, so neither the new folder before the swap nor the
+    old one after it is ever unmarked: a kill at any point leaves the target whole and a wrapper that the next
+    write sweeps.
     """
     target = Path(path)
     check_replaceable_dir(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(target)
-    tmp = _temp_dir(target.parent, target.name)
-    os.chmod(tmp, 0o777 & ~_UMASK)
+    wrapper = _temp_dir(target.parent, target.name)
+    tmp = wrapper / "payload"
+    tmp.mkdir(mode=0o777 & ~_UMASK)
     try:
         yield tmp
         check_replaceable_dir(target)  # nothing else may have appeared there while the block ran
-        (tmp / TEMP_MARKER).unlink()  # the new folder goes in without it
         if not os.path.lexists(target):
             os.rename(tmp, target)
-        elif _exchange(tmp, target):
-            _mark(tmp)  # now holds the old folder: marked, so a kill before the rmtree leaves a temp that is ours
-            shutil.rmtree(tmp)
-        else:
+        elif not _exchange(tmp, target):  # exchanged: the old folder is the payload now, inside the marked wrapper
             _swap_by_renames(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    finally:
+        _delete_temp(wrapper)
 
 
 def _swap_by_renames(tmp: Path, target: Path) -> None:
@@ -454,4 +529,4 @@ def _swap_by_renames(tmp: Path, target: Path) -> None:
         (target / TEMP_MARKER).unlink(missing_ok=True)
         raise
     os.rename(tmp, target)
-    shutil.rmtree(old)
+    _delete_temp(old)
